@@ -1,0 +1,40 @@
+#!/usr/bin/env bash
+# Installs every Debian package that vispack's build, tests, demo and benchmarks need.
+# Idempotent and non-interactive: when everything is present it only runs dpkg-query and exits.
+# Usage: scripts/install-deps.sh [--bench]   (--bench adds the peers the benchmark report measures)
+set -euo pipefail
+
+packages=(
+  # toolchain
+  build-essential cmake ninja-build pkg-config git clang libclang-rt-14-dev clang-format
+  # libraries the code links
+  libopencv-dev libopenimageio-dev libopenvdb-dev libboost-iostreams-dev libtbb-dev
+  libzstd-dev nlohmann-json3-dev libxxhash-dev libglfw3-dev libepoxy-dev libegl-dev libgl-dev
+  libimgui-dev
+  # tests: GoogleTest, Google Benchmark, headless GL, reference tools
+  libgtest-dev libgmock-dev libbenchmark-dev xvfb xauth libgl1-mesa-dri libegl-mesa0
+  openimageio-tools libopenvdb-tools zstd python3-numpy python3-zstandard
+  # sample data fetch
+  dpkg-dev xz-utils
+)
+if [[ "${1:-}" == "--bench" ]]; then
+  packages+=(gnuplot-nox elastix python3-vtk9 hyperfine valgrind time)
+fi
+
+missing=()
+for p in "${packages[@]}"; do
+  status=$(dpkg-query -W -f='${Status}' "$p" 2>/dev/null || true)
+  [[ "$status" == "install ok installed" ]] || missing+=("$p")
+done
+if [[ ${#missing[@]} -eq 0 ]]; then
+  echo "install-deps: all ${#packages[@]} packages present"
+  exit 0
+fi
+
+echo "install-deps: installing ${missing[*]}"
+SUDO=""
+if [[ $(id -u) -ne 0 ]]; then SUDO="sudo"; fi
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -q
+$SUDO apt-get install -y -q --no-install-recommends "${missing[@]}"
+echo "install-deps: done"
