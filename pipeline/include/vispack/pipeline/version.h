@@ -1,0 +1,6 @@
+// vispack's version and build identity, recorded in reports and packed-file provenance.
+#pragma once
+
+namespace vispack {
+const char* version_string();  // "0.1.0"
+}
