@@ -1,0 +1,96 @@
+// Streaming writer of packed volume files (format/SPEC.md).
+//
+// Usage:
+//   vispack::format::WriterOptions options;
+//   options.dims = {nx, ny, nz};
+//   options.spacing_mm = {0.33, 0.33, 1.0};
+//   options.channels = {{"rgba", ChannelType::kRgba8}, {"ct", ChannelType::kInt16},
+//                       {"labels", ChannelType::kUint16}};
+//   options.label_table = {{1, "skin", {230, 180, 150}}, ...};
+//   vispack::format::Writer writer("out/volume.vpk", options);
+//   for (z ...) writer.append_slice({rgba_slice, ct_slice, label_slice});
+//   writer.finish();  // the file appears complete at "out/volume.vpk", or not at all
+//
+// Memory: the writer keeps one slab of brick_edge slices per channel and per level (about
+// 4/3 of one brick row of level 0) plus the compressed bricks of one slab, whatever nz is.
+// Bricks of a slab are compressed in parallel on `threads` threads.
+// Determinism: the same slices and options give a byte-identical file, whatever `threads`
+// (no timestamps; bricks are written in index order of their slab).
+// Thread-safety: a Writer is used from one thread at a time.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "vispack/format/types.h"
+
+namespace vispack::format {
+
+struct WriterOptions {
+  std::array<std::int64_t, 3> dims{0, 0, 0};  // x, y, z voxels of level 0; each in [1, 2^31 - 1]
+  std::array<double, 3> spacing_mm{1, 1, 1};  // voxel spacing of level 0 (> 0, finite)
+  std::array<double, 3> origin_mm{0, 0, 0};   // centre of voxel (0, 0, 0)
+  int brick_edge = 64;                        // power of two in [4, 1024]
+  int zstd_level = 3;                         // 1..22 (negative: zstd's fast levels)
+  bool compress = true;                       // false: every non-uniform brick stored raw
+  int threads = 0;                            // compression threads; 0 = resolve_threads()
+  std::vector<ChannelSpec> channels;          // 1..16 channels with distinct, non-empty names
+  // For a label channel. The stored type of every label channel is chosen here: uint8 when
+  // the table's largest ID is <= 255, else uint16 (with an empty table, the ChannelSpec type).
+  std::vector<LabelEntry> label_table;
+  // Free-form JSON object stored under the metadata key "extra": provenance (tool version,
+  // config hash, input hashes), missing/duplicated slices, registration quality... It must not
+  // contain anything that changes between runs if the output is to be byte-reproducible.
+  nlohmann::json extra_metadata = nlohmann::json::object();
+};
+
+class Writer {
+ public:
+  // Validates the options (std::invalid_argument naming the bad field) and creates the
+  // temporary file beside `path` (IoError if it cannot).
+  Writer(std::string path, WriterOptions options);
+  ~Writer();  // without finish(), the temporary file is removed and `path` is left untouched
+  Writer(const Writer&) = delete;
+  Writer& operator=(const Writer&) = delete;
+  Writer(Writer&&) noexcept;
+  Writer& operator=(Writer&&) noexcept;
+
+  // Appends the next z slice of every channel, in options.channels order. Each pointer holds
+  // dims[0] * dims[1] voxels of that channel's type, x fastest; label channels are always
+  // passed as uint16 (the writer narrows them to uint8 when that is the stored type).
+  // The pointers are only read during the call.
+  // Throws std::invalid_argument (wrong pointer count, null pointer, more than dims[2] slices),
+  // InputError (a label ID does not fit the stored type; names slice and voxel), IoError.
+  void append_slice(const std::vector<const void*>& channel_slices);
+
+  // Slices appended so far.
+  std::int64_t slices_written() const;
+
+  // Writes the remaining slabs, the pyramid tail, metadata and index, and commits the file
+  // atomically. Throws std::invalid_argument if fewer than dims[2] slices were appended;
+  // IoError on write failure.
+  void finish();
+
+  // The stored channel list (label channels narrowed as described above).
+  const std::vector<ChannelSpec>& stored_channels() const;
+
+  // Number of mip levels a volume of `dims` gets with bricks of `brick_edge`: levels are
+  // added (each halving every dim, rounding up) until the whole level fits in one brick.
+  static int level_count_for(const std::array<std::int64_t, 3>& dims, int brick_edge);
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+// Convenience: writes a whole in-memory volume. `channel_volumes[c]` holds dims product voxels
+// of channel c (labels as uint16). Throws like Writer.
+void write_volume(const std::string& path, const WriterOptions& options,
+                  const std::vector<const void*>& channel_volumes);
+
+}  // namespace vispack::format

@@ -1,0 +1,60 @@
+// Slice folders and single slices: listing by file-name pattern, reading and writing images.
+//
+// Images are OpenCV matrices in RGB(A) channel order (NOT OpenCV's usual BGR): CV_8UC1/3/4 or
+// CV_16UC1/3/4. Reading and writing go through OpenImageIO (PNG, TIFF, BMP, JPEG), or through the
+// header-less raw layout of NLM Visible Human slices (RawLayout, config.h).
+// All functions are thread-safe (no shared state); each call opens its own file.
+#pragma once
+
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "vispack/pipeline/config.h"
+
+namespace vispack::pipeline {
+
+// Largest image edge and byte size read_slice accepts (a guard against decompression bombs and
+// hostile headers): images above either are refused with an InputError before any pixel is read.
+inline constexpr int kMaxImageEdge = 65536;
+inline constexpr std::uint64_t kMaxImageBytes = std::uint64_t(1) << 31;
+
+struct SliceFile {
+  int number;        // the number parsed from the file name where the pattern has {n}
+  std::string path;  // absolute (source.dir + "/" + file name)
+};
+
+// Files of a SliceSource whose names match its pattern ({n} = one or more decimal digits),
+// sorted by that number (so rgb_2 comes before rgb_10). Sub-folders and non-matching names are
+// ignored. Throws ConfigError naming the folder and the pattern when the folder is missing, the
+// pattern has no {n}, or nothing matches; ConfigError naming both files when two files carry the
+// same number (e.g. rgb_7.png and rgb_007.png).
+std::vector<SliceFile> list_slices(const SliceSource& source);
+
+// Reads one slice. Colour comes back in RGB order as CV_8UC3 / CV_16UC3 (an alpha channel in the
+// file is dropped), grey as CV_8UC1 / CV_16UC1. Images with other bit depths are converted: 1..8
+// bit to 8, 9..16 bit (and float) to 16. Without `raw` the file is read through OpenImageIO
+// (PNG, TIFF, BMP, JPEG; the format is recognised from the content); with `raw` it is read as a
+// header-less raw slice: `header_bytes` skipped, then width*height*channels samples of `bits`
+// each, planar or interleaved, in the declared byte order; the file size must be exactly
+// header_bytes + that many bytes.
+// Throws InputError naming the file: unreadable, zero bytes, truncated or corrupt, unsupported
+// channel count, raw size mismatch, or larger than kMaxImageEdge / kMaxImageBytes.
+cv::Mat read_slice(const std::string& path, const std::optional<RawLayout>& raw = std::nullopt);
+
+// Writes an image as PNG, TIFF or JPEG (chosen by the extension: .png, .tif/.tiff, .jpg/.jpeg),
+// atomically (temporary file + rename: the path holds the old content or the complete new one).
+// `image`: CV_8U or CV_16U with 1, 3 or 4 channels in RGB(A) order (JPEG: 8-bit, 1 or 3 channels).
+// The bytes are deterministic for the same image and quality (no timestamps, fixed compression
+// settings). `jpeg_quality` is 1..100. Throws IoError naming the path (cannot write, unsupported
+// extension or pixel type).
+void write_image(const std::string& path, const cv::Mat& image, int jpeg_quality = 90);
+
+// Writes a header-less raw slice in `layout` (planar or interleaved, 8 or 16 bit, byte order;
+// `header_bytes` zero bytes first), atomically. The image must match layout.width/height/channels
+// and its depth must match layout.bits (CV_8U for 8, CV_16U for 16). Throws IoError naming the path.
+void write_raw_slice(const std::string& path, const cv::Mat& image, const RawLayout& layout);
+
+}  // namespace vispack::pipeline

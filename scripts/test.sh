@@ -1,0 +1,64 @@
+#!/usr/bin/env bash
+# Runs the whole test suite: installs what is missing, fetches the real sample data, builds Release,
+# runs ctest (unit, command-line and headless image tests), then the sanitizer build of the format and
+# pipeline tests, short fuzz runs and the quick benchmark.
+# Usage: scripts/test.sh [--sanitize-only] [--no-sanitize] [--no-fuzz] [--no-bench]
+set -euo pipefail
+root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+cd "$root"
+sanitize=1 fuzz=1 bench=1 main=1
+for arg in "$@"; do
+  case "$arg" in
+    --sanitize|--sanitize-only) main=0 ;;
+    --no-sanitize) sanitize=0 ;;
+    --no-fuzz) fuzz=0 ;;
+    --no-bench) bench=0 ;;
+    -h|--help) sed -n '2,6p' "$0"; exit 0 ;;
+    *) echo "test.sh: unknown option $arg" >&2; exit 2 ;;
+  esac
+done
+jobs=${VISPACK_JOBS:-$(nproc)}
+start=$(date +%s)
+stamp() { printf '\n== [%4ds] %s\n' $(( $(date +%s) - start )) "$*"; }
+
+stamp "Installing missing Debian packages"
+scripts/install-deps.sh
+
+stamp "Fetching real sample data into data/samples (tests that need it skip if this fails)"
+if [[ -x scripts/fetch-sample-data.sh ]]; then
+  scripts/fetch-sample-data.sh || echo "test.sh: warning: sample data fetch failed; data tests will skip"
+fi
+
+failed=0
+if [[ $main == 1 ]]; then
+  stamp "Building (Release) into build/"
+  scripts/build.sh "$root/build"
+  stamp "Running ctest"
+  (cd build && ctest --output-on-failure -j "$jobs" --timeout 600) || failed=1
+fi
+
+if [[ $sanitize == 1 ]]; then
+  stamp "Building with ASan+UBSan into build-sanitize/ (format, pipeline and common tests)"
+  VISPACK_BUILD_TYPE=RelWithDebInfo scripts/build.sh "$root/build-sanitize" \
+    -DVISPACK_SANITIZE=ON -DVISPACK_BUILD_VIEWER=OFF -DVISPACK_BUILD_BENCH=OFF
+  stamp "Running sanitized tests"
+  (cd build-sanitize && ASAN_OPTIONS=detect_leaks=0:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 \
+     ctest --output-on-failure -j "$jobs" --timeout 900 -L 'common|format|pipeline') || failed=1
+fi
+
+if [[ $fuzz == 1 && -x scripts/fuzz.sh ]]; then
+  stamp "Short fuzz runs"
+  scripts/fuzz.sh --seconds 30 || failed=1
+fi
+
+if [[ $bench == 1 && -x scripts/bench.sh ]]; then
+  stamp "Quick benchmark (keeps the benchmarks from rotting)"
+  scripts/bench.sh --quick --no-report || failed=1
+fi
+
+stamp "Finished"
+if [[ $failed != 0 ]]; then
+  echo "test.sh: FAILED (see above)" >&2
+  exit 1
+fi
+echo "test.sh: all test steps passed"
