@@ -38,17 +38,18 @@ if [[ $main == 1 ]]; then
 fi
 
 if [[ $sanitize == 1 ]]; then
-  stamp "Building with ASan+UBSan into build-sanitize/ (format, pipeline and common tests)"
-  VISPACK_BUILD_TYPE=RelWithDebInfo scripts/build.sh "$root/build-sanitize" \
-    -DVISPACK_SANITIZE=ON -DVISPACK_BUILD_VIEWER=OFF -DVISPACK_BUILD_BENCH=OFF
+  # One clang build serves both the sanitized tests and the fuzzers (scripts/fuzz.sh).
+  stamp "Building with clang, ASan+UBSan and libFuzzer into build-sanitize/"
+  CC=clang CXX=clang++ VISPACK_BUILD_TYPE=RelWithDebInfo scripts/build.sh "$root/build-sanitize" \
+    -DVISPACK_SANITIZE=ON -DVISPACK_FUZZ=ON -DVISPACK_BUILD_VIEWER=OFF -DVISPACK_BUILD_BENCH=OFF
   stamp "Running sanitized tests"
   (cd build-sanitize && ASAN_OPTIONS=detect_leaks=0:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 \
      ctest --output-on-failure -j "$jobs" --timeout 900 -L 'common|format|pipeline') || failed=1
 fi
 
-if [[ $fuzz == 1 && -x scripts/fuzz.sh ]]; then
+if [[ $fuzz == 1 && $sanitize == 1 && -x scripts/fuzz.sh ]]; then
   stamp "Short fuzz runs"
-  scripts/fuzz.sh --seconds 30 || failed=1
+  scripts/fuzz.sh --seconds "${VISPACK_FUZZ_SECONDS:-30}" --build "$root/build-sanitize" || failed=1
 fi
 
 if [[ $bench == 1 && -x scripts/bench.sh ]]; then

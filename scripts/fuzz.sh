@@ -1,0 +1,41 @@
+#!/usr/bin/env bash
+# Runs each libFuzzer target for a while on its seed corpus (issue 7; docs/RELIABILITY.md).
+# Usage: scripts/fuzz.sh [--seconds N] [--build DIR] [TARGET ...]
+#   Builds DIR (default build-sanitize/, clang + ASan + UBSan + libFuzzer) if needed, writes each
+#   target's seed corpus with <target>_replay --seeds, then runs <target> for N seconds (default 30).
+#   Corpus and crash files go to out/fuzz/<target>/. Exits non-zero if any target finds a crash.
+set -euo pipefail
+root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+seconds=30 build=$root/build-sanitize targets=()
+while [[ $# -gt 0 ]]; do
+  case "$1" in
+    --seconds) seconds=$2; shift 2 ;;
+    --build) build=$2; shift 2 ;;
+    -h|--help) sed -n '2,7p' "$0"; exit 0 ;;
+    *) targets+=("$1"); shift ;;
+  esac
+done
+if [[ ! -x $build/bin/fuzz_format_reader ]]; then
+  CC=clang CXX=clang++ VISPACK_BUILD_TYPE=RelWithDebInfo "$root/scripts/build.sh" "$build" \
+    -DVISPACK_SANITIZE=ON -DVISPACK_FUZZ=ON -DVISPACK_BUILD_VIEWER=OFF -DVISPACK_BUILD_BENCH=OFF
+fi
+if [[ ${#targets[@]} -eq 0 ]]; then
+  targets=(fuzz_format_reader fuzz_config fuzz_raw_slice)
+fi
+status=0
+for t in "${targets[@]}"; do
+  [[ -x $build/bin/$t ]] || { echo "fuzz: $t not built, skipped"; continue; }
+  dir=$root/out/fuzz/$t
+  mkdir -p "$dir/corpus" "$dir/seeds" "$dir/crashes"
+  "$build/bin/${t}_replay" --seeds "$dir/seeds" >/dev/null
+  echo "fuzz: $t for ${seconds}s"
+  if ! ASAN_OPTIONS=detect_leaks=0:abort_on_error=1 "$build/bin/$t" "$dir/corpus" "$dir/seeds" \
+      -max_total_time="$seconds" -timeout=20 -rss_limit_mb=4096 -max_len=262144 \
+      -artifact_prefix="$dir/crashes/" -print_final_stats=1 >"$dir/log.txt" 2>&1; then
+    echo "fuzz: $t FOUND A PROBLEM: see $dir/log.txt and $dir/crashes/" >&2
+    tail -30 "$dir/log.txt" >&2
+    status=1
+  fi
+  grep -E '^stat::number_of_executed_units|^stat::peak_rss_mb' "$dir/log.txt" | sed "s/^/fuzz: $t /" || true
+done
+exit $status
