@@ -30,9 +30,10 @@ def encode_png(image):
         raise ValueError("encode_png: shape %s is not (H,W) or (H,W,3)" % (a.shape,))
     h, w = a.shape[:2]
     bits = 8 if a.dtype == np.uint8 else 16
-    rows = np.ascontiguousarray(a.astype(">u2") if bits == 16 else a).reshape(h, -1)
+    rows = np.ascontiguousarray(a.astype(">u2") if bits == 16 else a).view(np.uint8)
+    rows = rows.reshape(h, w * channels * bits // 8)
     raw = np.zeros((h, rows.shape[1] + 1), np.uint8)  # filter byte 0 (None) per row
-    raw[:, 1:] = rows.view(np.uint8).reshape(h, -1)
+    raw[:, 1:] = rows
     ihdr = struct.pack(">IIBBBBB", w, h, bits, colour_type, 0, 0, 0)
     return (_SIG + _chunk(b"IHDR", ihdr) + _chunk(b"IDAT", zlib.compress(raw.tobytes(), 6)) +
             _chunk(b"IEND", b""))

@@ -58,8 +58,8 @@ struct ByteView {
 // payload checksums in index order, then padding) with the brick it concerns.
 struct VerifyResult {
   bool ok = true;
-  std::string message;              // one line naming the brick or the byte range at fault
-  std::optional<BrickInfo> brick;   // the bad brick (level, channel, brick x/y/z), if any
+  std::string message;             // one line naming the brick or the byte range at fault
+  std::optional<BrickInfo> brick;  // the bad brick (level, channel, brick x/y/z), if any
 };
 
 class Reader {

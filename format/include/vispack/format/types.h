@@ -74,12 +74,12 @@ const char* codec_name(Codec codec);
 // valid voxel on each axis ("clamp to edge"), so a GPU sampler that clamps sees the same data.
 struct BrickInfo {
   int level = 0;
-  int channel = 0;                    // index into the channel list
+  int channel = 0;                             // index into the channel list
   std::array<std::int64_t, 3> brick{0, 0, 0};  // brick coordinates bx, by, bz in the level's grid
   Codec codec = Codec::kUniform;
-  std::uint64_t offset = 0;           // payload offset in the file (0 for uniform bricks)
-  std::uint64_t stored_size = 0;      // payload bytes in the file (0 for uniform bricks)
-  std::uint64_t checksum = 0;         // xxHash64 (seed 0) of the stored payload (0 if uniform)
+  std::uint64_t offset = 0;       // payload offset in the file (0 for uniform bricks)
+  std::uint64_t stored_size = 0;  // payload bytes in the file (0 for uniform bricks)
+  std::uint64_t checksum = 0;     // xxHash64 (seed 0) of the stored payload (0 if uniform)
   // Per-component minimum and maximum over the brick's valid voxels (not the replicated
   // padding). Scalar channels use element 0 only (the others are 0); int16 is sign-extended.
   std::array<std::int64_t, 4> min{0, 0, 0, 0};

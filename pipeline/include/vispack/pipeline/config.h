@@ -101,8 +101,15 @@ struct Config {
 // Loads and validates a config file. Throws ConfigError (bad content) or IoError (unreadable).
 Config load_config(const std::string& path);
 
-// Hash (16 hex digits) of one top-level section of the config as written, plus the sections it
-// depends on; used by stage reports to decide whether outputs are stale.
+// Every key path the loader accepts ("ct.raw.width", ...), for documentation and the schema test.
+// Keys starting with '_' are comments, accepted anywhere and ignored; JSON comments (// and /* */)
+// are stripped by the parser.
+std::vector<std::string> config_key_paths();
+
+// Hash (16 hex digits) of the named parts of the config as written: top-level sections ("mask")
+// or single keys inside them ("mask.hu_threshold"), absent ones hashing as null. Keys starting
+// with '_' (comments) do not count. Used by stage manifests to decide whether outputs are stale:
+// a stage lists exactly what it reads, so touching another key does not rerun it.
 std::string config_section_hash(const Config& config, const std::vector<std::string>& sections);
 
 }  // namespace vispack::pipeline

@@ -44,9 +44,10 @@ std::vector<SliceFile> list_slices(const SliceSource& source);
 // channel count, raw size mismatch, or larger than kMaxImageEdge / kMaxImageBytes.
 cv::Mat read_slice(const std::string& path, const std::optional<RawLayout>& raw = std::nullopt);
 
-// Writes an image as PNG, TIFF or JPEG (chosen by the extension: .png, .tif/.tiff, .jpg/.jpeg),
+// Writes an image as PNG, TIFF, JPEG or BMP (by the extension: .png, .tif/.tiff, .jpg/.jpeg, .bmp),
 // atomically (temporary file + rename: the path holds the old content or the complete new one).
-// `image`: CV_8U or CV_16U with 1, 3 or 4 channels in RGB(A) order (JPEG: 8-bit, 1 or 3 channels).
+// `image`: CV_8U or CV_16U with 1, 3 or 4 channels in RGB(A) order (JPEG, BMP: 8-bit, 1 or 3
+// channels).
 // The bytes are deterministic for the same image and quality (no timestamps, fixed compression
 // settings). `jpeg_quality` is 1..100. Throws IoError naming the path (cannot write, unsupported
 // extension or pixel type).
@@ -54,7 +55,8 @@ void write_image(const std::string& path, const cv::Mat& image, int jpeg_quality
 
 // Writes a header-less raw slice in `layout` (planar or interleaved, 8 or 16 bit, byte order;
 // `header_bytes` zero bytes first), atomically. The image must match layout.width/height/channels
-// and its depth must match layout.bits (CV_8U for 8, CV_16U for 16). Throws IoError naming the path.
+// and its depth must match layout.bits (CV_8U for 8, CV_16U for 16). Throws IoError naming the
+// path.
 void write_raw_slice(const std::string& path, const cv::Mat& image, const RawLayout& layout);
 
 }  // namespace vispack::pipeline

@@ -77,11 +77,11 @@ struct StageOptions {
 // What a stage run did, for vispack-run's summary.
 struct StageResult {
   std::string stage;
-  int processed = 0;          // slices (or units) computed in this run
-  int skipped = 0;            // slices found up to date
+  int processed = 0;  // slices (or units) computed in this run
+  int skipped = 0;    // slices found up to date
   double seconds = 0.0;
-  std::string output;         // the main output (folder or file), absolute
-  std::string report;         // path of the report written
+  std::string output;  // the main output (folder or file), absolute
+  std::string report;  // path of the report written
   bool up_to_date() const { return processed == 0; }
 };
 
@@ -141,10 +141,10 @@ struct CtToRgb {
 };
 
 struct StackTransforms {
-  int width = 0, height = 0;                  // output (and observed RGB) grid, pixels
-  std::array<double, 2> center_px{0, 0};      // ((W-1)/2, (H-1)/2)
+  int width = 0, height = 0;              // output (and observed RGB) grid, pixels
+  std::array<double, 2> center_px{0, 0};  // ((W-1)/2, (H-1)/2)
   int reference_slice = 0;
-  std::vector<SliceTransform> slices;         // one per stack index, in order
+  std::vector<SliceTransform> slices;  // one per stack index, in order
   std::optional<CtToRgb> ct_to_rgb;
   nlohmann::json extra = nlohmann::json::object();  // unknown keys, kept on write
 };
@@ -186,8 +186,15 @@ class StageRun {
   const std::string& stage_hash() const { return stage_hash_; }
   const StageOptions& options() const { return options_; }
 
+  // Removes temporaries ("<final>.tmp-*") that a killed run left for `final_path`, an output
+  // outside the stage folder (the packed file, the OpenVDB file). Temporaries inside the stage
+  // folder are removed by the constructor: all of them for an unsharded run, those of the
+  // shard's own slices for a sharded one.
+  void remove_stale_temporaries_of(const std::string& final_path) const;
+
   // <dir>/<prefix>_NNNN.<ext>
-  std::string slice_path(const std::string& prefix, int index, const std::string& ext = "png") const;
+  std::string slice_path(const std::string& prefix, int index,
+                         const std::string& ext = "png") const;
 
   // True if slice `index` was recorded with this stage hash and `input_fingerprint`, and every
   // recorded output still has its recorded identity (and `outputs` are exactly those recorded).
@@ -199,8 +206,8 @@ class StageRun {
   bool all_up_to_date() const;
   // Records slice `index` as computed (outputs already written) and advances the progress.
   // `bytes` (input bytes read) feeds the report's MB/s.
-  void done(int index, const std::string& input_fingerprint, const std::vector<std::string>& outputs,
-            std::uint64_t bytes = 0);
+  void done(int index, const std::string& input_fingerprint,
+            const std::vector<std::string>& outputs, std::uint64_t bytes = 0);
   // Advances the progress for a slice found up to date.
   void skip(int index);
   void add_bytes(std::uint64_t bytes);
@@ -228,6 +235,7 @@ class StageRun {
   int threads_ = 1;
   std::string config_hash_, stage_hash_, manifest_path_, report_path_;
   mutable std::mutex mutex_;
+  void remove_stale_temporaries() const;
   nlohmann::json previous_;  // "index" -> {input, outputs{path: identity}} from all manifests
   nlohmann::json current_;   // entries recorded by this run (plus still-valid previous ones)
   nlohmann::json report_ = nlohmann::json::object();

@@ -1,0 +1,674 @@
+#include "vispack/format/writer.h"
+
+#include <xxhash.h>
+#include <zstd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <mutex>
+#include <stdexcept>
+#include <unordered_set>
+
+#include "layout.h"
+#include "vispack/common/atomic_file.h"
+#include "vispack/common/error.h"
+#include "vispack/common/hash.h"
+#include "vispack/common/parallel.h"
+#include "vispack/format/downsample.h"
+#include "vispack/format/reader.h"
+
+namespace vispack::format {
+namespace {
+
+using detail::align_up;
+using detail::IndexEntry;
+
+constexpr std::int64_t kMaxDim = (std::int64_t(1) << 31) - 1;
+
+bool is_power_of_two(int v) {
+  return v > 0 && (v & (v - 1)) == 0;
+}
+
+std::int64_t ceil_div(std::int64_t a, std::int64_t b) {
+  return (a + b - 1) / b;
+}
+
+// zstd compression contexts shared by the worker threads (one per brick in flight).
+class CCtxPool {
+ public:
+  ~CCtxPool() {
+    for (ZSTD_CCtx* c : free_)
+      ZSTD_freeCCtx(c);
+  }
+  ZSTD_CCtx* acquire() {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (!free_.empty()) {
+        ZSTD_CCtx* c = free_.back();
+        free_.pop_back();
+        return c;
+      }
+    }
+    ZSTD_CCtx* c = ZSTD_createCCtx();
+    if (!c) throw std::bad_alloc();
+    return c;
+  }
+  void release(ZSTD_CCtx* c) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    free_.push_back(c);
+  }
+
+ private:
+  std::mutex mutex_;
+  std::vector<ZSTD_CCtx*> free_;
+};
+
+struct BrickResult {
+  IndexEntry entry{};
+  std::vector<std::uint8_t> payload;  // stored bytes (empty for uniform)
+  std::vector<std::uint32_t> labels;
+};
+
+// Stats over a whole (padded) brick: the padding replicates valid voxels, so the minimum,
+// maximum and label set equal those of the valid voxels alone.
+void brick_stats(ChannelType type, const std::uint8_t* data, std::size_t voxels, IndexEntry& e,
+                 std::vector<std::uint32_t>& labels) {
+  std::memset(e.min, 0, 8);
+  std::memset(e.max, 0, 8);
+  switch (type) {
+    case ChannelType::kRgba8: {
+      std::uint8_t lo[4] = {255, 255, 255, 255}, hi[4] = {0, 0, 0, 0};
+      for (std::size_t i = 0; i < voxels; ++i) {
+        for (int c = 0; c < 4; ++c) {
+          std::uint8_t v = data[4 * i + c];
+          lo[c] = std::min(lo[c], v);
+          hi[c] = std::max(hi[c], v);
+        }
+      }
+      std::memcpy(e.min, lo, 4);
+      std::memcpy(e.max, hi, 4);
+      break;
+    }
+    case ChannelType::kInt16: {
+      const auto* v = reinterpret_cast<const std::int16_t*>(data);
+      std::int16_t lo = std::numeric_limits<std::int16_t>::max();
+      std::int16_t hi = std::numeric_limits<std::int16_t>::min();
+      for (std::size_t i = 0; i < voxels; ++i) {
+        lo = std::min(lo, v[i]);
+        hi = std::max(hi, v[i]);
+      }
+      std::memcpy(e.min, &lo, 2);
+      std::memcpy(e.max, &hi, 2);
+      break;
+    }
+    case ChannelType::kUint8: {
+      bool seen[256] = {};
+      for (std::size_t i = 0; i < voxels; ++i)
+        seen[data[i]] = true;
+      for (int id = 0; id < 256; ++id) {
+        if (seen[id]) labels.push_back(std::uint32_t(id));
+      }
+      std::uint8_t lo = std::uint8_t(labels.front()), hi = std::uint8_t(labels.back());
+      std::memcpy(e.min, &lo, 1);
+      std::memcpy(e.max, &hi, 1);
+      break;
+    }
+    case ChannelType::kUint16: {
+      const auto* v = reinterpret_cast<const std::uint16_t*>(data);
+      std::vector<std::uint8_t> seen(65536, 0);
+      for (std::size_t i = 0; i < voxels; ++i)
+        seen[v[i]] = 1;
+      for (std::uint32_t id = 0; id < 65536; ++id) {
+        if (seen[id]) labels.push_back(id);
+      }
+      std::uint16_t lo = std::uint16_t(labels.front()), hi = std::uint16_t(labels.back());
+      std::memcpy(e.min, &lo, 2);
+      std::memcpy(e.max, &hi, 2);
+      break;
+    }
+  }
+}
+
+// Reduces 2x2x2 children of one output slice. `src` holds `nzc` (1 or 2) slices of dx*dy.
+void downsample_slice(ChannelType type, const std::uint8_t* src, int nzc, std::int64_t dx,
+                      std::int64_t dy, std::uint8_t* dst, int threads) {
+  const std::int64_t ox = ceil_div(dx, 2), oy = ceil_div(dy, 2);
+  const std::size_t bytes = channel_type_bytes(type);
+  const std::size_t plane = std::size_t(dx) * std::size_t(dy);
+  auto row = [&](std::int64_t y) {
+    std::uint8_t children[8 * 4];
+    for (std::int64_t x = 0; x < ox; ++x) {
+      int n = 0;
+      for (int z = 0; z < nzc; ++z) {
+        for (std::int64_t yy = 2 * y; yy < std::min(dy, 2 * y + 2); ++yy) {
+          for (std::int64_t xx = 2 * x; xx < std::min(dx, 2 * x + 2); ++xx) {
+            std::memcpy(children + n * bytes, src + (z * plane + yy * dx + xx) * bytes, bytes);
+            ++n;
+          }
+        }
+      }
+      std::uint8_t* out = dst + (std::size_t(y) * ox + x) * bytes;
+      switch (type) {
+        case ChannelType::kRgba8: {
+          auto v = reduce_rgba_alpha_weighted(children, n);
+          std::memcpy(out, v.data(), 4);
+          break;
+        }
+        case ChannelType::kInt16: {
+          std::int16_t c[8];
+          std::memcpy(c, children, 2 * n);
+          std::int16_t v = reduce_mean_i16(c, n);
+          std::memcpy(out, &v, 2);
+          break;
+        }
+        case ChannelType::kUint8: {
+          std::uint16_t c[8];
+          for (int i = 0; i < n; ++i)
+            c[i] = children[i];
+          *out = std::uint8_t(reduce_majority(c, n));
+          break;
+        }
+        case ChannelType::kUint16: {
+          std::uint16_t c[8];
+          std::memcpy(c, children, 2 * n);
+          std::uint16_t v = reduce_majority(c, n);
+          std::memcpy(out, &v, 2);
+          break;
+        }
+      }
+    }
+  };
+  if (ox * oy < 65536 || threads <= 1) {
+    for (std::int64_t y = 0; y < oy; ++y)
+      row(y);
+  } else {
+    const std::int64_t chunk = 16;
+    parallel_for(ceil_div(oy, chunk), threads, [&](std::int64_t i) {
+      for (std::int64_t y = i * chunk; y < std::min(oy, (i + 1) * chunk); ++y)
+        row(y);
+    });
+  }
+}
+
+void validate(const WriterOptions& o) {
+  for (int a = 0; a < 3; ++a) {
+    if (o.dims[a] < 1 || o.dims[a] > kMaxDim) {
+      throw std::invalid_argument(
+          cat("WriterOptions.dims[", a, "] = ", o.dims[a], " is outside [1, 2^31 - 1]"));
+    }
+    if (!(o.spacing_mm[a] > 0) || !std::isfinite(o.spacing_mm[a])) {
+      throw std::invalid_argument(
+          cat("WriterOptions.spacing_mm[", a, "] = ", o.spacing_mm[a], " must be finite and > 0"));
+    }
+    if (!std::isfinite(o.origin_mm[a])) {
+      throw std::invalid_argument(cat("WriterOptions.origin_mm[", a, "] is not finite"));
+    }
+  }
+  if (!is_power_of_two(o.brick_edge) || o.brick_edge < 4 || o.brick_edge > 1024) {
+    throw std::invalid_argument(
+        cat("WriterOptions.brick_edge = ", o.brick_edge, " must be a power of two in [4, 1024]"));
+  }
+  if (o.zstd_level < ZSTD_minCLevel() || o.zstd_level > ZSTD_maxCLevel() || o.zstd_level == 0) {
+    throw std::invalid_argument(cat("WriterOptions.zstd_level = ", o.zstd_level, " must be in [",
+                                    ZSTD_minCLevel(), ", ", ZSTD_maxCLevel(), "] and not 0"));
+  }
+  if (o.channels.empty() || o.channels.size() > 16) {
+    throw std::invalid_argument(
+        cat("WriterOptions.channels has ", o.channels.size(), " entries; 1 to 16 are allowed"));
+  }
+  std::unordered_set<std::string> names;
+  for (const auto& c : o.channels) {
+    if (c.name.empty() || c.name.size() > 255) {
+      throw std::invalid_argument("WriterOptions.channels: a channel name is empty or too long");
+    }
+    if (!names.insert(c.name).second) {
+      throw std::invalid_argument(
+          cat("WriterOptions.channels: duplicate channel \"", c.name, "\""));
+    }
+    channel_type_bytes(c.type);  // throws on a bad enum value
+  }
+  std::unordered_set<std::uint32_t> ids;
+  for (const auto& l : o.label_table) {
+    if (l.id == 0 || l.id > 65535) {
+      throw std::invalid_argument(
+          cat("WriterOptions.label_table: id ", l.id, " (\"", l.name, "\") is outside [1, 65535]"));
+    }
+    if (!ids.insert(l.id).second) {
+      throw std::invalid_argument(cat("WriterOptions.label_table: duplicate id ", l.id));
+    }
+  }
+  if (!o.extra_metadata.is_object() && !o.extra_metadata.is_null()) {
+    throw std::invalid_argument("WriterOptions.extra_metadata must be a JSON object");
+  }
+  // One slab of level 0 must be addressable.
+  const std::uint64_t plane = std::uint64_t(o.dims[0]) * std::uint64_t(o.dims[1]);
+  if (plane > (std::uint64_t(1) << 40) / std::uint64_t(o.brick_edge)) {
+    throw std::invalid_argument(cat("WriterOptions.dims: a slab of ", o.brick_edge, " slices of ",
+                                    o.dims[0], "x", o.dims[1], " voxels is too large"));
+  }
+}
+
+nlohmann::json array3(const std::array<double, 3>& a) {
+  return nlohmann::json::array({a[0], a[1], a[2]});
+}
+nlohmann::json array3(const std::array<std::int64_t, 3>& a) {
+  return nlohmann::json::array({a[0], a[1], a[2]});
+}
+
+const char* downsample_rule(ChannelType type) {
+  switch (type) {
+    case ChannelType::kRgba8:
+      return "alpha_weighted_mean";
+    case ChannelType::kInt16:
+      return "mean";
+    default:
+      return "majority";
+  }
+}
+
+}  // namespace
+
+int Writer::level_count_for(const std::array<std::int64_t, 3>& dims, int brick_edge) {
+  int levels = 1;
+  std::array<std::int64_t, 3> d = dims;
+  while (d[0] > brick_edge || d[1] > brick_edge || d[2] > brick_edge) {
+    for (auto& v : d)
+      v = ceil_div(v, 2);
+    ++levels;
+  }
+  return levels;
+}
+
+struct Writer::Impl {
+  struct Level {
+    std::array<std::int64_t, 3> dims{};
+    std::array<std::int64_t, 3> grid{};
+    std::int64_t received = 0;
+    std::uint64_t index_base = 0;
+    std::vector<std::vector<std::uint8_t>> slab;        // per channel: edge slices
+    std::vector<std::vector<std::uint8_t>> next_slice;  // per channel: one slice of level + 1
+  };
+
+  std::string path;
+  WriterOptions opt;
+  std::vector<ChannelSpec> stored;
+  AtomicFile file;
+  int threads = 1;
+  std::vector<Level> levels;
+  std::vector<IndexEntry> entries;
+  std::vector<std::vector<std::uint32_t>> entry_labels;
+  std::vector<bool> filled;
+  std::vector<std::vector<std::uint8_t>> narrow;  // per channel: level-0 slice in stored type
+  std::vector<std::uint8_t> zeros = std::vector<std::uint8_t>(kPayloadAlignment, 0);
+  std::uint64_t pos = 0;
+  std::int64_t slices = 0;
+  bool finished = false;
+  CCtxPool pool;
+
+  Impl(std::string p, WriterOptions o) : path(std::move(p)), opt(std::move(o)), file(path) {
+    threads = resolve_threads(opt.threads);
+    std::uint32_t max_id = 0;
+    for (const auto& l : opt.label_table)
+      max_id = std::max(max_id, l.id);
+    for (const auto& c : opt.channels) {
+      ChannelSpec s = c;
+      if (is_label_type(c.type) && !opt.label_table.empty()) {
+        s.type = max_id <= 255 ? ChannelType::kUint8 : ChannelType::kUint16;
+      }
+      stored.push_back(s);
+    }
+    const int e = opt.brick_edge;
+    const int n_levels = level_count_for(opt.dims, e);
+    std::array<std::int64_t, 3> d = opt.dims;
+    std::uint64_t base = 0;
+    for (int l = 0; l < n_levels; ++l) {
+      Level lv;
+      lv.dims = d;
+      for (int a = 0; a < 3; ++a)
+        lv.grid[a] = ceil_div(d[a], e);
+      lv.index_base = base;
+      base += std::uint64_t(lv.grid[0] * lv.grid[1] * lv.grid[2]) * stored.size();
+      const std::size_t plane = std::size_t(d[0]) * std::size_t(d[1]);
+      for (const auto& s : stored) {
+        lv.slab.emplace_back(plane * std::size_t(e) * channel_type_bytes(s.type));
+        if (l + 1 < n_levels) {
+          lv.next_slice.emplace_back(std::size_t(ceil_div(d[0], 2)) *
+                                     std::size_t(ceil_div(d[1], 2)) * channel_type_bytes(s.type));
+        }
+      }
+      levels.push_back(std::move(lv));
+      for (auto& v : d)
+        v = ceil_div(v, 2);
+    }
+    if (base > ReaderLimits{}.max_index_entries) {
+      throw std::invalid_argument(cat(path, ": ", base, " bricks exceed the reader's limit of ",
+                                      ReaderLimits{}.max_index_entries,
+                                      "; use a larger brick_edge"));
+    }
+    entries.resize(base);
+    entry_labels.resize(base);
+    filled.assign(base, false);
+    narrow.resize(stored.size());
+    for (std::size_t c = 0; c < stored.size(); ++c) {
+      if (is_label_type(stored[c].type) && stored[c].type == ChannelType::kUint8) {
+        narrow[c].resize(std::size_t(opt.dims[0]) * std::size_t(opt.dims[1]));
+      }
+    }
+    file.write(zeros.data(), zeros.size());  // header placeholder + zero padding up to 4096
+    pos = kPayloadAlignment;
+  }
+
+  void make_brick(int L, int c, std::int64_t bx, std::int64_t by, std::int64_t bz, int nzv,
+                  BrickResult& r) {
+    const Level& lv = levels[L];
+    const std::int64_t e = opt.brick_edge;
+    const ChannelType type = stored[c].type;
+    const std::size_t bytes = channel_type_bytes(type);
+    const std::int64_t dx = lv.dims[0], dy = lv.dims[1];
+    const std::int64_t x0 = bx * e, y0 = by * e;
+    const std::int64_t nxv = std::min(e, dx - x0), nyv = std::min(e, dy - y0);
+    const std::size_t row_bytes = std::size_t(e) * bytes;
+    const std::size_t plane_bytes = row_bytes * std::size_t(e);
+    const std::size_t brick_bytes = plane_bytes * std::size_t(e);
+    std::vector<std::uint8_t> buf(brick_bytes);
+    const std::uint8_t* slab = lv.slab[c].data();
+    for (std::int64_t z = 0; z < e; ++z) {
+      std::uint8_t* plane = buf.data() + std::size_t(z) * plane_bytes;
+      if (z >= nzv) {
+        std::memcpy(plane, buf.data() + std::size_t(nzv - 1) * plane_bytes, plane_bytes);
+        continue;
+      }
+      for (std::int64_t y = 0; y < e; ++y) {
+        std::uint8_t* dst = plane + std::size_t(y) * row_bytes;
+        if (y >= nyv) {
+          std::memcpy(dst, plane + std::size_t(nyv - 1) * row_bytes, row_bytes);
+          continue;
+        }
+        const std::uint8_t* src = slab + ((std::size_t(z) * dy + (y0 + y)) * dx + x0) * bytes;
+        std::memcpy(dst, src, std::size_t(nxv) * bytes);
+        for (std::int64_t x = nxv; x < e; ++x) {
+          std::memcpy(dst + std::size_t(x) * bytes, src + std::size_t(nxv - 1) * bytes, bytes);
+        }
+      }
+    }
+    IndexEntry& en = r.entry;
+    en.bx = std::uint32_t(bx);
+    en.by = std::uint32_t(by);
+    en.bz = std::uint32_t(bz);
+    en.level = std::uint8_t(L);
+    en.channel = std::uint8_t(c);
+    brick_stats(type, buf.data(), brick_bytes / bytes, en, r.labels);
+    if (std::memcmp(en.min, en.max, 8) == 0) {
+      en.codec = std::uint8_t(Codec::kUniform);
+      return;  // offset, size, checksum stay 0
+    }
+    en.codec = std::uint8_t(Codec::kRaw);
+    if (opt.compress) {
+      std::vector<std::uint8_t> out(ZSTD_compressBound(brick_bytes));
+      ZSTD_CCtx* cctx = pool.acquire();
+      std::size_t n =
+          ZSTD_compressCCtx(cctx, out.data(), out.size(), buf.data(), brick_bytes, opt.zstd_level);
+      pool.release(cctx);
+      if (ZSTD_isError(n)) {
+        throw Error(cat(path, ": zstd failed on brick level ", L, " channel ", stored[c].name, " (",
+                        bx, ",", by, ",", bz, "): ", ZSTD_getErrorName(n)));
+      }
+      if (n < brick_bytes) {
+        out.resize(n);
+        out.shrink_to_fit();
+        r.payload = std::move(out);
+        en.codec = std::uint8_t(Codec::kZstd);
+      }
+    }
+    if (en.codec == std::uint8_t(Codec::kRaw)) r.payload = std::move(buf);
+    en.stored_size = r.payload.size();
+    en.checksum = xxh64(r.payload.data(), r.payload.size());
+  }
+
+  void flush(int L, std::int64_t bz, int nzv) {
+    const Level& lv = levels[L];
+    const std::int64_t gx = lv.grid[0], gy = lv.grid[1];
+    const std::int64_t per_channel = gx * gy;
+    const std::int64_t items = per_channel * std::int64_t(stored.size());
+    std::vector<BrickResult> results(static_cast<std::size_t>(items));
+    parallel_for(items, threads, [&](std::int64_t i) {
+      int c = int(i / per_channel);
+      std::int64_t r = i % per_channel;
+      make_brick(L, c, r % gx, r / gx, bz, nzv, results[std::size_t(i)]);
+    });
+    const std::uint64_t grid_count = std::uint64_t(gx * gy * lv.grid[2]);
+    for (std::int64_t i = 0; i < items; ++i) {
+      BrickResult& r = results[std::size_t(i)];
+      if (!r.payload.empty()) {
+        r.entry.offset = pos;
+        file.write(r.payload.data(), r.payload.size());
+        std::uint64_t pad = align_up(r.payload.size(), kPayloadAlignment) - r.payload.size();
+        if (pad) file.write(zeros.data(), pad);
+        pos += r.payload.size() + pad;
+        std::vector<std::uint8_t>().swap(r.payload);
+      }
+      int c = int(i / per_channel);
+      std::uint64_t k = lv.index_base + std::uint64_t(c) * grid_count +
+                        std::uint64_t(bz * gx * gy) + std::uint64_t(i % per_channel);
+      entries[k] = r.entry;
+      entry_labels[k] = std::move(r.labels);
+      filled[k] = true;
+    }
+  }
+
+  void push(int L, const std::vector<const std::uint8_t*>& slices_in) {
+    Level& lv = levels[L];
+    const std::int64_t e = opt.brick_edge;
+    const std::int64_t z = lv.received++;
+    const std::int64_t zs = z % e;
+    const std::size_t plane = std::size_t(lv.dims[0]) * std::size_t(lv.dims[1]);
+    for (std::size_t c = 0; c < stored.size(); ++c) {
+      const std::size_t bytes = channel_type_bytes(stored[c].type);
+      std::memcpy(lv.slab[c].data() + std::size_t(zs) * plane * bytes, slices_in[c], plane * bytes);
+    }
+    const bool last = z == lv.dims[2] - 1;
+    if (L + 1 < int(levels.size()) && (z % 2 == 1 || last)) {
+      const std::int64_t z0 = zs & ~std::int64_t(1);
+      std::vector<const std::uint8_t*> next(stored.size());
+      for (std::size_t c = 0; c < stored.size(); ++c) {
+        const std::size_t bytes = channel_type_bytes(stored[c].type);
+        downsample_slice(stored[c].type, lv.slab[c].data() + std::size_t(z0) * plane * bytes,
+                         z % 2 == 1 ? 2 : 1, lv.dims[0], lv.dims[1], lv.next_slice[c].data(),
+                         threads);
+        next[c] = lv.next_slice[c].data();
+      }
+      push(L + 1, next);
+    }
+    if (zs == e - 1 || last) flush(L, z / e, int(zs + 1));
+  }
+
+  void finish() {
+    const std::uint64_t payload_end = pos;
+    std::vector<std::uint32_t> label_ids;
+    for (std::size_t k = 0; k < entries.size(); ++k) {
+      if (!filled[k]) throw Error(cat(path, ": internal error: brick ", k, " was never written"));
+      if (!entry_labels[k].empty()) {
+        entries[k].label_first = std::uint32_t(label_ids.size());
+        entries[k].label_count = std::uint32_t(entry_labels[k].size());
+        label_ids.insert(label_ids.end(), entry_labels[k].begin(), entry_labels[k].end());
+      }
+    }
+    std::string meta = metadata().dump();
+    detail::FileHeader h{};
+    std::memcpy(h.magic, detail::kMagic, 8);
+    h.version_major = kFormatMajor;
+    h.version_minor = kFormatMinor;
+    h.header_size = detail::kHeaderSize;
+    h.payload_offset = kPayloadAlignment;
+    h.payload_end = payload_end;
+    h.metadata_offset = payload_end;
+    h.metadata_size = meta.size();
+    h.index_offset = align_up(payload_end + meta.size(), 8);
+    h.index_count = entries.size();
+    h.labels_offset = h.index_offset + entries.size() * sizeof(IndexEntry);
+    h.labels_count = label_ids.size();
+    h.file_size = h.labels_offset + label_ids.size() * 4;
+    h.index_entry_size = detail::kIndexEntrySize;
+    h.brick_edge = std::uint32_t(opt.brick_edge);
+    h.level_count = std::uint32_t(levels.size());
+    h.channel_count = std::uint32_t(stored.size());
+
+    XXH64_state_t* state = XXH64_createState();
+    if (!state) throw std::bad_alloc();
+    XXH64_reset(state, 0);
+    XXH64_update(state, &h, detail::kChecksumFieldOffset);
+    XXH64_update(state, meta.data(), meta.size());
+    XXH64_update(state, zeros.data(), h.index_offset - (payload_end + meta.size()));
+    XXH64_update(state, entries.data(), entries.size() * sizeof(IndexEntry));
+    XXH64_update(state, label_ids.data(), label_ids.size() * 4);
+    h.table_checksum = XXH64_digest(state);
+    XXH64_freeState(state);
+
+    file.write(meta);
+    std::uint64_t pad = h.index_offset - (payload_end + meta.size());
+    if (pad) file.write(zeros.data(), pad);
+    file.write(entries.data(), entries.size() * sizeof(IndexEntry));
+    file.write(label_ids.data(), label_ids.size() * 4);
+    if (file.size() != h.file_size) {
+      throw Error(
+          cat(path, ": internal error: wrote ", file.size(), " bytes, expected ", h.file_size));
+    }
+    file.pwrite(&h, sizeof(h), 0);
+    file.commit();
+  }
+
+  nlohmann::json metadata() const {
+    using nlohmann::json;
+    json m = json::object();
+    m["format"] = "vispack";
+    m["version"] = json::array({kFormatMajor, kFormatMinor});
+    m["dims"] = array3(opt.dims);
+    m["spacing_mm"] = array3(opt.spacing_mm);
+    m["origin_mm"] = array3(opt.origin_mm);
+    m["axes"] = json::array({"x: image column, left to right", "y: image row, top to bottom",
+                             "z: slice index, increasing"});
+    m["memory_order"] = "x fastest, then y, then z; components interleaved";
+    m["brick_edge"] = opt.brick_edge;
+    m["brick_padding"] = "replicate";
+    json channels = json::array();
+    for (const auto& s : stored) {
+      channels.push_back({{"name", s.name},
+                          {"type", channel_type_name(s.type)},
+                          {"components", channel_type_components(s.type)},
+                          {"downsample", downsample_rule(s.type)}});
+    }
+    m["channels"] = channels;
+    json lv = json::array();
+    for (std::size_t l = 0; l < levels.size(); ++l) {
+      double f = double(std::int64_t(1) << l);
+      std::array<double, 3> sp{}, org{};
+      for (int a = 0; a < 3; ++a) {
+        sp[a] = opt.spacing_mm[a] * f;
+        org[a] = opt.origin_mm[a] + (f - 1) / 2 * opt.spacing_mm[a];
+      }
+      lv.push_back({{"dims", array3(levels[l].dims)},
+                    {"bricks", array3(levels[l].grid)},
+                    {"spacing_mm", array3(sp)},
+                    {"origin_mm", array3(org)}});
+    }
+    m["levels"] = lv;
+    json table = json::array();
+    for (const auto& l : opt.label_table) {
+      table.push_back({{"id", l.id},
+                       {"name", l.name},
+                       {"colour", json::array({l.colour[0], l.colour[1], l.colour[2]})}});
+    }
+    m["label_table"] = table;
+    m["extra"] = opt.extra_metadata.is_null() ? json::object() : opt.extra_metadata;
+    return m;
+  }
+};
+
+Writer::Writer(std::string path, WriterOptions options) {
+  validate(options);
+  impl_ = std::make_unique<Impl>(std::move(path), std::move(options));
+}
+Writer::~Writer() = default;
+Writer::Writer(Writer&&) noexcept = default;
+Writer& Writer::operator=(Writer&&) noexcept = default;
+
+std::int64_t Writer::slices_written() const {
+  return impl_->slices;
+}
+const std::vector<ChannelSpec>& Writer::stored_channels() const {
+  return impl_->stored;
+}
+
+void Writer::append_slice(const std::vector<const void*>& channel_slices) {
+  Impl& m = *impl_;
+  if (m.finished) throw std::invalid_argument(cat(m.path, ": append_slice after finish()"));
+  if (channel_slices.size() != m.stored.size()) {
+    throw std::invalid_argument(cat(m.path, ": append_slice got ", channel_slices.size(),
+                                    " channel pointers, expected ", m.stored.size()));
+  }
+  if (m.slices >= m.opt.dims[2]) {
+    throw std::invalid_argument(
+        cat(m.path, ": append_slice: already got all ", m.opt.dims[2], " slices"));
+  }
+  const std::size_t plane = std::size_t(m.opt.dims[0]) * std::size_t(m.opt.dims[1]);
+  std::vector<const std::uint8_t*> in(m.stored.size());
+  for (std::size_t c = 0; c < m.stored.size(); ++c) {
+    if (!channel_slices[c]) {
+      throw std::invalid_argument(
+          cat(m.path, ": append_slice: null pointer for channel \"", m.stored[c].name, "\""));
+    }
+    in[c] = static_cast<const std::uint8_t*>(channel_slices[c]);
+    if (is_label_type(m.stored[c].type) && m.stored[c].type == ChannelType::kUint8) {
+      const auto* src = static_cast<const std::uint16_t*>(channel_slices[c]);
+      std::uint8_t* dst = m.narrow[c].data();
+      for (std::size_t i = 0; i < plane; ++i) {
+        if (src[i] > 255) {
+          throw InputError(cat(m.path, ": slice ", m.slices, ", channel \"", m.stored[c].name,
+                               "\", voxel (", i % std::size_t(m.opt.dims[0]), ", ",
+                               i / std::size_t(m.opt.dims[0]), "): label ID ", src[i],
+                               " does not fit the stored type uint8"));
+        }
+        dst[i] = std::uint8_t(src[i]);
+      }
+      in[c] = dst;
+    }
+  }
+  m.push(0, in);
+  ++m.slices;
+}
+
+void Writer::finish() {
+  Impl& m = *impl_;
+  if (m.finished) throw std::invalid_argument(cat(m.path, ": finish() called twice"));
+  if (m.slices != m.opt.dims[2]) {
+    throw std::invalid_argument(
+        cat(m.path, ": finish() after ", m.slices, " of ", m.opt.dims[2], " slices"));
+  }
+  m.finish();
+  m.finished = true;
+}
+
+void write_volume(const std::string& path, const WriterOptions& options,
+                  const std::vector<const void*>& channel_volumes) {
+  Writer writer(path, options);
+  const auto& stored = writer.stored_channels();
+  if (channel_volumes.size() != stored.size()) {
+    throw std::invalid_argument(cat(path, ": write_volume got ", channel_volumes.size(),
+                                    " channel volumes, expected ", stored.size()));
+  }
+  const std::size_t plane = std::size_t(options.dims[0]) * std::size_t(options.dims[1]);
+  std::vector<const void*> slice(stored.size());
+  for (std::int64_t z = 0; z < options.dims[2]; ++z) {
+    for (std::size_t c = 0; c < stored.size(); ++c) {
+      std::size_t bytes = is_label_type(stored[c].type) ? 2 : channel_type_bytes(stored[c].type);
+      slice[c] =
+          static_cast<const std::uint8_t*>(channel_volumes[c]) + std::size_t(z) * plane * bytes;
+    }
+    writer.append_slice(slice);
+  }
+  writer.finish();
+}
+
+}  // namespace vispack::format

@@ -1,0 +1,34 @@
+// vispack-run: every stage in order, in-process, skipping what is up to date.
+//
+// Order: register -> mask -> labels -> pack -> vdb. "labels" is skipped when the config has no
+// "seg" section, "vdb" when vdb.enabled is false; "register" with register.enabled = false is
+// still called (it writes identity transforms and copies the slices, per register.h).
+// Each stage decides per slice (or per output file) what is stale (stage.h), so a second run
+// recomputes nothing, and a changed config section reruns its stage; later stages then see new
+// input files and rerun too.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "vispack/pipeline/config.h"
+#include "vispack/pipeline/stage.h"
+
+namespace vispack::pipeline {
+
+// "register", "mask", "labels", "pack", "vdb".
+const std::vector<std::string>& pipeline_stage_names();
+
+struct RunOptions {
+  std::string from;    // first stage to run (empty: "register")
+  std::string to;      // last stage to run (empty: "vdb")
+  bool force = false;  // recompute every stage in [from, to]
+  bool quiet = false;
+  int threads = 0;
+};
+
+// Runs the stages [from, to] that the config enables. Throws UsageError for an unknown stage
+// name or from after to; otherwise whatever a stage throws (the stage's own errors).
+std::vector<StageResult> run_pipeline(const Config& config, const RunOptions& options);
+
+}  // namespace vispack::pipeline

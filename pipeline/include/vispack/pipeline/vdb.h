@@ -1,0 +1,26 @@
+// vispack-vdb: OpenVDB export of the pipeline intermediates (OpenVDB 10).
+//
+// Grids, at full resolution of the output grid (pack.downsample does not apply):
+//   "ct"     FloatGrid, HU (from work/mask/ct_NNNN.png), only when the config has "ct"
+//   "labels" Int32Grid, label IDs (work/labels/labels_NNNN.png), only when the config has "seg"
+//   "rgb"    Vec3SGrid, colour in 0..1 (work/register/registered/rgb_NNNN.png)
+// Voxels are active only inside the body mask (work/mask/mask_NNNN.png); the background value is
+// 0 (ct: -1024 HU). Index (i, j, k) = (x, y, z) of the output grid; the transform is a scale
+// by spacing_mm (anisotropic), so world coordinates are millimetres with voxel (0, 0, 0) at the
+// origin. Grid class: ct and rgb GRID_FOG_VOLUME-like "unknown", labels unknown; each grid
+// carries metadata "vispack_version" and "units" ("HU", "id", "rgb01").
+// The file is written with io::File's default compression (Blosc when OpenVDB has it, else zip)
+// to a temporary name and renamed: config.vdb_output appears complete or not at all.
+// Not sharded (`--slices` with a partial range is a UsageError). Needs vdb.enabled.
+#pragma once
+
+#include "vispack/pipeline/config.h"
+#include "vispack/pipeline/stage.h"
+
+namespace vispack::pipeline {
+
+// Writes config.vdb_output. Throws ConfigError (vdb disabled), InputError (missing or wrong-sized
+// intermediates), IoError.
+StageResult run_vdb_stage(const Config& config, const StageOptions& options);
+
+}  // namespace vispack::pipeline

@@ -1,0 +1,438 @@
+#include "vispack/pipeline/phantom.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <mutex>
+#include <regex>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+
+#include "phantom_model.h"
+#include "vispack/common/atomic_file.h"
+#include "vispack/common/error.h"
+#include "vispack/common/nrrd.h"
+#include "vispack/common/parallel.h"
+#include "vispack/common/progress.h"
+#include "vispack/pipeline/slice_io.h"
+
+namespace vispack::pipeline {
+namespace {
+
+namespace fs = std::filesystem;
+using namespace phantom_detail;
+using ojson = nlohmann::ordered_json;
+
+constexpr double kPi = 3.14159265358979323846;
+constexpr double kNoiseSigma = 3.0;  // RGB sensor noise, 8-bit levels
+constexpr double kCtNoiseHu = 6.0;   // CT noise, HU
+constexpr double kGainRange = 0.05;  // brightness gain 1 ± 5 %
+constexpr double kDriftPx = 0.3;     // random-walk step σ, pixels
+constexpr double kDriftDeg = 0.05;   // random-walk step σ, degrees
+
+struct SliceTruth {
+  double dx = 0, dy = 0, rot = 0, gain = 1;
+  bool jump = false, black = false;
+  int duplicate_of = -1;
+  int source = 0;  // model slice whose picture the observed file shows (k, or k−1 for a duplicate)
+};
+
+struct Plan {
+  PhantomPreset preset;
+  int slices = 0;
+  bool defects = false;
+  int jump = -1, black = -1, duplicate = -1;
+  std::vector<SliceTruth> truth;
+  double ct_scale = 1, ct_rot = 0, ct_dx = 0, ct_dy = 0;
+  int digits = 4;
+};
+
+// Shift limits that keep the body inside the frame under any recorded rotation.
+struct Limits {
+  double x, y, rot;
+};
+Limits limits_for(const PhantomPreset& p, double max_rot_deg) {
+  const double half = p.height * 0.5;
+  const double reach = Model::body_max_a() * half;  // farthest body point from the centre, px
+  const double rot_px = max_rot_deg * kPi / 180.0 * reach;
+  return {p.width * 0.5 - Model::body_max_a() * half - 3 - rot_px,
+          half - Model::body_max_b() * half - 2 - rot_px, max_rot_deg};
+}
+
+double reflect(double v, double limit) {
+  for (int i = 0; i < 4 && std::fabs(v) > limit; ++i)
+    v = v > 0 ? 2 * limit - v : -2 * limit - v;
+  return std::clamp(v, -limit, limit);
+}
+
+Plan make_plan(const PhantomOptions& options) {
+  Plan plan;
+  plan.preset = phantom_preset(options.preset);
+  const PhantomPreset& p = plan.preset;
+  plan.slices = options.slices > 0 ? options.slices : p.slices;
+  if (options.slices < 0 || plan.slices < 2 || plan.slices > 100000) {
+    throw UsageError(cat("--slices ", options.slices, ": must be between 2 and 100000"));
+  }
+  const int n = plan.slices;
+  // The preset's default quietly drops the defects for very short stacks; asking for them fails.
+  plan.defects = options.defects.value_or(p.defects && n >= 6);
+  if (plan.defects && n < 6) {
+    throw UsageError(cat("black/duplicate slices (--defects) need at least 6 slices, got ", n));
+  }
+  const double volume_bytes = double(p.width) * p.height * n * 8.0;
+  if (volume_bytes > 12e9) {
+    throw UsageError(cat("--slices ", n, ": the truth volumes would need ",
+                         std::llround(volume_bytes / 1e9), " GB of memory; use fewer slices"));
+  }
+  plan.digits = std::max(4, int(std::to_string(n - 1).size()));
+  plan.jump = n / 2;
+  if (plan.defects) {
+    plan.black = std::max(1, n / 4);
+    plan.duplicate = (3 * n) / 4;
+    if (plan.duplicate == plan.jump) ++plan.duplicate;
+    if (plan.duplicate - 1 == plan.black) ++plan.duplicate;
+    if (plan.duplicate >= n) throw UsageError("too few slices for the defects");
+  }
+
+  const bool tiny = p.height < 128;
+  const double jump_lo = tiny ? 7.0 : 10.0, jump_hi = tiny ? 9.0 : 15.0;
+  const double rot_lo = tiny ? 1.5 : 2.0, rot_hi = tiny ? 2.5 : 4.0;
+  const Limits lim = limits_for(p, tiny ? 3.5 : 6.0);
+
+  Random rng(options.seed * 0x9e3779b97f4a7c15ull + 17);
+  plan.truth.resize(n);
+  for (int k = 0; k < n; ++k) {
+    SliceTruth& s = plan.truth[k];
+    s.source = k;
+    s.gain = 1.0 + rng.uniform(-kGainRange, kGainRange);
+    const double step_x = rng.normal(kDriftPx), step_y = rng.normal(kDriftPx);
+    const double step_r = rng.normal(kDriftDeg);
+    const double jump_m = rng.uniform(jump_lo, jump_hi), jump_a = rng.uniform(0, 2 * kPi);
+    const double jump_r = rng.uniform(rot_lo, rot_hi) * (rng.uniform() < 0.5 ? -1 : 1);
+    if (k == 0) {
+      s.dx = s.dy = s.rot = 0;  // the reference slice
+      continue;
+    }
+    const SliceTruth& prev = plan.truth[k - 1];
+    if (k == plan.duplicate) {
+      // An exact copy of the previous file: same picture, same transform.
+      s = prev;
+      s.jump = false;
+      s.black = false;
+      s.duplicate_of = k - 1;
+      s.source = prev.source;
+      continue;
+    }
+    s.dx = reflect(prev.dx + step_x, lim.x);
+    s.dy = reflect(prev.dy + step_y, lim.y);
+    s.rot = reflect(prev.rot + step_r, lim.rot);
+    if (k == plan.jump) {
+      // Try directions around the drawn one until the whole jump fits inside the limits.
+      bool placed = false;
+      for (int attempt = 0; attempt < 8 && !placed; ++attempt) {
+        const double a = jump_a + attempt * kPi / 4;
+        const double jx = prev.dx + jump_m * std::cos(a), jy = prev.dy + jump_m * std::sin(a);
+        if (std::fabs(jx) <= lim.x && std::fabs(jy) <= lim.y) {
+          s.dx = jx;
+          s.dy = jy;
+          placed = true;
+        }
+      }
+      if (!placed) {
+        throw Error(cat("phantom: no room for a block jump of ", jump_m, " px in a ", p.width, "x",
+                        p.height, " frame"));
+      }
+      s.rot = std::clamp(prev.rot + jump_r, -lim.rot, lim.rot);
+      if (std::fabs(s.rot - prev.rot) < rot_lo * 0.99) s.rot = prev.rot - jump_r;
+      s.jump = true;
+    }
+    s.black = k == plan.black;
+  }
+
+  // CT → RGB: the exact pixel-size ratio plus a small rotation and shift.
+  Random ct_rng(options.seed * 0xd1b54a32d192ed03ull + 29);
+  plan.ct_scale = p.ct_pixel_mm / p.pixel_mm;
+  plan.ct_rot = ct_rng.uniform(1.0, 2.5) * (ct_rng.uniform() < 0.5 ? -1 : 1);
+  plan.ct_dx = ct_rng.uniform(2.0, 4.0) * (ct_rng.uniform() < 0.5 ? -1 : 1);
+  plan.ct_dy = ct_rng.uniform(2.0, 4.0) * (ct_rng.uniform() < 0.5 ? -1 : 1);
+  return plan;
+}
+
+// Rounds for tidy JSON (sub-micro-pixel precision is far below anything a test measures).
+double tidy(double v) {
+  return std::round(v * 1e6) / 1e6;
+}
+
+std::string numbered(const std::string& stem, int number, int digits, const std::string& ext) {
+  char buffer[32];
+  std::snprintf(buffer, sizeof buffer, "%0*d", digits, number);
+  return stem + "_" + buffer + ext;
+}
+
+std::uint8_t to_u8(double v) {
+  return static_cast<std::uint8_t>(std::clamp(std::lround(v), 0L, 255L));
+}
+
+// Removes files of an earlier run (same naming scheme) that this run did not write.
+void remove_stale(const std::string& dir, const std::regex& pattern,
+                  const std::vector<std::string>& keep) {
+  std::error_code ec;
+  for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string name = it->path().filename().string();
+    if (!std::regex_match(name, pattern)) continue;
+    if (std::find(keep.begin(), keep.end(), name) != keep.end()) continue;
+    fs::remove(it->path(), ec);
+  }
+}
+
+}  // namespace
+
+PhantomPreset phantom_preset(const std::string& name) {
+  PhantomPreset p;
+  p.name = name;
+  if (name == "tiny") {
+    p.width = 96, p.height = 64, p.slices = 24, p.pixel_mm = 0.5, p.ct_size = 56,
+    p.ct_pixel_mm = 1.0, p.defects = false;
+  } else if (name == "small") {
+    p.width = 256, p.height = 192, p.slices = 64, p.pixel_mm = 0.33, p.ct_size = 128,
+    p.ct_pixel_mm = 0.9, p.defects = true;
+  } else if (name == "medium") {
+    p.width = 512, p.height = 384, p.slices = 160, p.pixel_mm = 0.33, p.ct_size = 256,
+    p.ct_pixel_mm = 0.9, p.defects = true;
+  } else if (name == "vhp") {
+    p.width = 2048, p.height = 1216, p.slices = 16, p.pixel_mm = 0.33, p.ct_size = 512,
+    p.ct_pixel_mm = 1.4, p.defects = true;
+  } else {
+    throw UsageError(cat("unknown preset \"", name, "\" (use tiny, small, medium or vhp)"));
+  }
+  p.slice_mm = 1.0;
+  return p;
+}
+
+PhantomSummary make_phantom(const std::string& out_dir, const PhantomOptions& options) {
+  const auto start = std::chrono::steady_clock::now();
+  const Plan plan = make_plan(options);
+  const PhantomPreset& p = plan.preset;
+  const int W = p.width, H = p.height, N = plan.slices, C = p.ct_size;
+  const Model model(W, H, N, options.seed);
+  const GaussianTable gaussian;
+
+  const std::string rgb_dir = out_dir + "/rgb", ct_dir = out_dir + "/ct",
+                    seg_dir = out_dir + "/seg";
+  const std::string truth_dir = out_dir + "/truth";
+  for (const auto& d : {rgb_dir, ct_dir, seg_dir, truth_dir})
+    make_directories(d);
+
+  const std::string rgb_ext = options.rgb_raw ? ".raw" : ".png";
+  const std::string seg_ext = options.seg_jpeg ? ".jpg" : ".png";
+  RawLayout raw;
+  raw.width = W, raw.height = H, raw.channels = 3, raw.planar = true, raw.bits = 8;
+
+  NrrdVolume truth_rgb, truth_ct, truth_mask, truth_labels;
+  const std::array<double, 3> spacing{p.pixel_mm, p.pixel_mm, p.slice_mm};
+  auto init = [&](NrrdVolume& v, NrrdType type, int components) {
+    v.type = type;
+    v.components = components;
+    v.dims = {W, H, N};
+    v.spacing_mm = spacing;
+    v.data.assign(v.byte_size(), 0);
+  };
+  init(truth_rgb, NrrdType::kUint8, 3);
+  init(truth_ct, NrrdType::kInt16, 1);
+  init(truth_mask, NrrdType::kUint8, 1);
+  init(truth_labels, NrrdType::kUint16, 1);
+
+  const double cx = (W - 1) * 0.5, cy = (H - 1) * 0.5, cct = (C - 1) * 0.5;
+  Progress progress("vispack-phantom", N, "slices", options.quiet);
+  parallel_for(N, resolve_threads(options.threads), [&](std::int64_t kk) {
+    const int k = static_cast<int>(kk);
+    const SliceTruth& st = plan.truth[k];
+    const SliceParams params = model.slice(k);
+    Sample sample;
+    // Truth on the output grid: no drift, no noise, gain 1.
+    const std::size_t plane = std::size_t(W) * H;
+    auto* t_rgb = truth_rgb.as<std::uint8_t>() + plane * 3 * k;
+    auto* t_ct = truth_ct.as<std::int16_t>() + plane * k;
+    auto* t_mask = truth_mask.as<std::uint8_t>() + plane * k;
+    auto* t_lab = truth_labels.as<std::uint16_t>() + plane * k;
+    for (int y = 0; y < H; ++y) {
+      for (int x = 0; x < W; ++x) {
+        model.eval(params, x, y, 1.0, true, true, sample);
+        const std::size_t i = std::size_t(y) * W + x;
+        for (int c = 0; c < 3; ++c)
+          t_rgb[i * 3 + c] = to_u8(sample.rgb[c]);
+        t_ct[i] = static_cast<std::int16_t>(std::clamp(std::lround(sample.hu), -1024L, 3071L));
+        t_mask[i] = sample.body ? 1 : 0;
+        t_lab[i] = sample.label;
+      }
+    }
+
+    // Observed RGB and segmentation: the model sampled at q(p) for each observed pixel p,
+    // q = c + R(−θ)(p − c − d) (the inverse of p = c + R(θ)(q − c) + d).
+    cv::Mat rgb(H, W, CV_8UC3, cv::Scalar::all(0));
+    cv::Mat seg(H, W, CV_8UC3, cv::Scalar::all(0));
+    if (!st.black) {
+      const SliceParams& src = st.source == k ? params : model.slice(st.source);
+      const double th = st.rot * kPi / 180.0, cs = std::cos(th), sn = std::sin(th);
+      Random noise(mix64(options.seed ^ (0x5851f42d4c957f2dull * std::uint64_t(st.source + 1))));
+      for (int y = 0; y < H; ++y) {
+        auto* row = rgb.ptr<std::uint8_t>(y);
+        auto* srow = seg.ptr<std::uint8_t>(y);
+        for (int x = 0; x < W; ++x) {
+          const double px = x - cx - st.dx, py = y - cy - st.dy;
+          const double qx = cx + cs * px + sn * py, qy = cy - sn * px + cs * py;
+          model.eval(src, qx, qy, 1.0, true, false, sample);
+          float gauss[4];
+          noise.normal4(gaussian, gauss);
+          for (int c = 0; c < 3; ++c) {
+            row[x * 3 + c] = to_u8(sample.rgb[c] * st.gain + kNoiseSigma * gauss[c]);
+          }
+          const auto& colour = label_info(sample.label).palette;
+          for (int c = 0; c < 3; ++c)
+            srow[x * 3 + c] = static_cast<std::uint8_t>(colour[c]);
+        }
+      }
+    }
+    const std::string rgb_path = rgb_dir + "/" + numbered("rgb", k, plan.digits, rgb_ext);
+    if (options.rgb_raw) {
+      write_raw_slice(rgb_path, rgb, raw);
+    } else {
+      write_image(rgb_path, rgb);
+    }
+    write_image(seg_dir + "/" + numbered("seg", k, plan.digits, seg_ext), seg, 90);
+
+    // CT: its own (larger) pixels, no drift, HU + 1024 stored, 16-bit.
+    cv::Mat ct(C, C, CV_16UC1);
+    {
+      const double th = plan.ct_rot * kPi / 180.0, cs = std::cos(th), sn = std::sin(th);
+      const double s = plan.ct_scale;
+      Random noise(mix64(options.seed ^ (0x2545f4914f6cdd1dull * std::uint64_t(k + 1))));
+      for (int v = 0; v < C; ++v) {
+        auto* row = ct.ptr<std::uint16_t>(v);
+        for (int u = 0; u < C; ++u) {
+          const double du = u - cct, dv = v - cct;
+          const double qx = cx + s * (cs * du - sn * dv) + plan.ct_dx;
+          const double qy = cy + s * (sn * du + cs * dv) + plan.ct_dy;
+          model.eval(params, qx, qy, s, false, true, sample);
+          float gauss[4];
+          noise.normal4(gaussian, gauss);
+          const double hu = sample.hu + kCtNoiseHu * gauss[0];
+          row[u] = static_cast<std::uint16_t>(std::clamp(std::lround(hu + 1024.0), 0L, 4095L));
+        }
+      }
+    }
+    write_image(ct_dir + "/" + numbered("ct", k, plan.digits, ".png"), ct);
+    progress.advance();
+  });
+  progress.finish();
+
+  write_nrrd(truth_dir + "/rgb.nrrd", truth_rgb);
+  write_nrrd(truth_dir + "/ct.nrrd", truth_ct);
+  write_nrrd(truth_dir + "/mask.nrrd", truth_mask);
+  write_nrrd(truth_dir + "/labels.nrrd", truth_labels);
+
+  // transforms.json (docs/ARCHITECTURE.md "Slice transforms") plus the phantom's own extras:
+  // per-slice "gain", and top-level noise levels, preset and seed.
+  ojson transforms;
+  transforms["width"] = W;
+  transforms["height"] = H;
+  transforms["center_px"] = {cx, cy};
+  transforms["reference_slice"] = 0;
+  ojson slices = ojson::array();
+  for (int k = 0; k < N; ++k) {
+    const SliceTruth& st = plan.truth[k];
+    ojson s;
+    s["index"] = k;
+    s["number"] = k;
+    s["file"] = numbered("rgb", k, plan.digits, rgb_ext);
+    s["dx_px"] = tidy(st.dx);
+    s["dy_px"] = tidy(st.dy);
+    s["rotation_deg"] = tidy(st.rot);
+    s["jump"] = st.jump;
+    s["black"] = st.black;
+    s["duplicate_of"] = st.duplicate_of >= 0 ? ojson(st.duplicate_of) : ojson(nullptr);
+    s["quality"] = 1.0;
+    s["gain"] = tidy(st.gain);
+    slices.push_back(s);
+  }
+  transforms["slices"] = slices;
+  transforms["ct_to_rgb"] = {{"scale", plan.ct_scale},
+                             {"rotation_deg", tidy(plan.ct_rot)},
+                             {"dx_px", tidy(plan.ct_dx)},
+                             {"dy_px", tidy(plan.ct_dy)}};
+  transforms["noise_sigma"] = kNoiseSigma;
+  transforms["ct_noise_hu"] = kCtNoiseHu;
+  transforms["preset"] = p.name;
+  transforms["seed"] = options.seed;
+  write_file_atomic(truth_dir + "/transforms.json", transforms.dump(2) + "\n");
+
+  ojson palette;
+  palette["labels"] = ojson::array();
+  for (int id = 1; id < kLabelCount; ++id) {
+    const LabelInfo& info = label_info(id);
+    palette["labels"].push_back({{"id", id}, {"name", info.name}, {"colour", info.palette}});
+  }
+  write_file_atomic(out_dir + "/palette.json", palette.dump(2) + "\n");
+
+  // A ready config; ct_initial is a rough guess (scale +3 %, no rotation, no shift), not the truth.
+  ojson config;
+  config["name"] = "phantom-" + p.name;
+  config["work_dir"] = "work";
+  config["output"] = "out/volume.vpk";
+  config["vdb_output"] = "out/volume.vdb";
+  config["spacing_mm"] = {p.pixel_mm, p.pixel_mm, p.slice_mm};
+  ojson rgb_cfg = {{"dir", "rgb"}, {"pattern", "rgb_{n}" + rgb_ext}};
+  if (options.rgb_raw) {
+    rgb_cfg["raw"] = {{"width", W}, {"height", H},        {"channels", 3},    {"layout", "planar"},
+                      {"bits", 8},  {"endian", "little"}, {"header_bytes", 0}};
+  }
+  config["rgb"] = rgb_cfg;
+  config["ct"] = {{"dir", "ct"},
+                  {"pattern", "ct_{n}.png"},
+                  {"pixel_spacing_mm", {p.ct_pixel_mm, p.ct_pixel_mm}},
+                  {"slope", 1.0},
+                  {"intercept", -1024.0}};
+  config["seg"] = {
+      {"dir", "seg"},     {"pattern", "seg_{n}" + seg_ext},          {"palette", "palette.json"},
+      {"mode", "colour"}, {"tolerance", options.seg_jpeg ? 48 : 24}, {"strict", false}};
+  config["register"] = {{"enabled", true},
+                        {"method", "phase+ecc"},
+                        {"ecc_scale", 0.5},
+                        {"jump_px", 6.0},
+                        {"ct_initial",
+                         {{"scale", std::round(plan.ct_scale * 1.03 * 1000) / 1000},
+                          {"rotation_deg", 0},
+                          {"dx_px", 0},
+                          {"dy_px", 0}}}};
+  config["mask"] = {{"hu_threshold", -400}, {"opening_px", 1}, {"refine_gel", true}};
+  config["pack"] = {{"brick_edge", 64}, {"zstd_level", 3}, {"downsample", 1}};
+  config["vdb"] = {{"enabled", true}};
+  write_file_atomic(out_dir + "/config.json", config.dump(2) + "\n");
+
+  // Leftovers of an earlier run with another preset, slice count or format.
+  std::vector<std::string> keep_rgb, keep_seg, keep_ct;
+  for (int k = 0; k < N; ++k) {
+    keep_rgb.push_back(numbered("rgb", k, plan.digits, rgb_ext));
+    keep_seg.push_back(numbered("seg", k, plan.digits, seg_ext));
+    keep_ct.push_back(numbered("ct", k, plan.digits, ".png"));
+  }
+  remove_stale(rgb_dir, std::regex("rgb_[0-9]+\\.(png|raw)"), keep_rgb);
+  remove_stale(seg_dir, std::regex("seg_[0-9]+\\.(png|jpg)"), keep_seg);
+  remove_stale(ct_dir, std::regex("ct_[0-9]+\\.png"), keep_ct);
+
+  PhantomSummary summary;
+  summary.width = W;
+  summary.height = H;
+  summary.slices = N;
+  summary.ct_size = C;
+  summary.jump_slice = plan.jump;
+  summary.black_slice = plan.black;
+  summary.duplicate_slice = plan.duplicate;
+  summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return summary;
+}
+
+}  // namespace vispack::pipeline

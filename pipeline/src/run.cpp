@@ -1,0 +1,53 @@
+#include "vispack/pipeline/run.h"
+
+#include <algorithm>
+#include <iostream>
+
+#include "vispack/common/error.h"
+#include "vispack/pipeline/labels.h"
+#include "vispack/pipeline/mask.h"
+#include "vispack/pipeline/pack.h"
+#include "vispack/pipeline/register.h"
+#include "vispack/pipeline/vdb.h"
+
+namespace vispack::pipeline {
+
+const std::vector<std::string>& pipeline_stage_names() {
+  static const std::vector<std::string> names = {"register", "mask", "labels", "pack", "vdb"};
+  return names;
+}
+
+std::vector<StageResult> run_pipeline(const Config& config, const RunOptions& options) {
+  const auto& names = pipeline_stage_names();
+  auto position = [&](const std::string& name, int fallback) {
+    if (name.empty()) return fallback;
+    auto it = std::find(names.begin(), names.end(), name);
+    if (it == names.end())
+      throw UsageError(
+          cat("unknown stage '", name, "' (stages: register, mask, labels, pack, vdb)"));
+    return int(it - names.begin());
+  };
+  const int from = position(options.from, 0), to = position(options.to, int(names.size()) - 1);
+  if (from > to) throw UsageError(cat("--from ", options.from, " comes after --to ", options.to));
+  StageOptions stage_options;
+  stage_options.force = options.force;
+  stage_options.quiet = options.quiet;
+  stage_options.threads = options.threads;
+  std::vector<StageResult> results;
+  for (int i = from; i <= to; ++i) {
+    const std::string& name = names[i];
+    if (name == "labels" && !config.seg) continue;
+    if (name == "vdb" && (!config.vdb.enabled || config.vdb_output.empty())) continue;
+    StageResult r;
+    if (name == "register") r = run_register_stage(config, stage_options);
+    if (name == "mask") r = run_mask_stage(config, stage_options);
+    if (name == "labels") r = run_labels_stage(config, stage_options);
+    if (name == "pack") r = run_pack_stage(config, stage_options);
+    if (name == "vdb") r = run_vdb_stage(config, stage_options);
+    if (r.stage.empty()) r.stage = name;
+    results.push_back(r);
+  }
+  return results;
+}
+
+}  // namespace vispack::pipeline

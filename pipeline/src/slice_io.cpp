@@ -1,0 +1,309 @@
+#include "vispack/pipeline/slice_io.h"
+
+#include <OpenImageIO/filesystem.h>
+#include <OpenImageIO/imageio.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cstring>
+#include <filesystem>
+#include <system_error>
+
+#include "vispack/common/atomic_file.h"
+#include "vispack/common/error.h"
+
+namespace vispack::pipeline {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string lower(std::string s) {
+  for (char& c : s)
+    c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return s;
+}
+
+std::string extension_of(const std::string& path) {
+  return lower(fs::path(path).extension().string());
+}
+
+// Size guard shared by the OIIO and raw readers.
+void check_size(const std::string& path, std::int64_t width, std::int64_t height,
+                std::int64_t channels, std::int64_t bytes_per_sample) {
+  if (width <= 0 || height <= 0) {
+    throw InputError(cat(path, ": invalid image size ", width, "x", height));
+  }
+  if (width > kMaxImageEdge || height > kMaxImageEdge) {
+    throw InputError(cat(path, ": image of ", width, "x", height, " pixels exceeds the limit of ",
+                         kMaxImageEdge, " pixels a side"));
+  }
+  const auto bytes = std::uint64_t(width) * std::uint64_t(height) * std::uint64_t(channels) *
+                     std::uint64_t(bytes_per_sample);
+  if (bytes > kMaxImageBytes) {
+    throw InputError(cat(path, ": image of ", width, "x", height, "x", channels, " needs ", bytes,
+                         " bytes, over the limit of ", kMaxImageBytes, " bytes"));
+  }
+}
+
+cv::Mat read_raw(const std::string& path, const RawLayout& raw, std::uint64_t file_size) {
+  if (raw.channels != 1 && raw.channels != 3) {
+    throw InputError(cat(path, ": raw layout with ", raw.channels, " channels (1 or 3 supported)"));
+  }
+  if (raw.bits != 8 && raw.bits != 16) {
+    throw InputError(cat(path, ": raw layout with ", raw.bits, " bits (8 or 16 supported)"));
+  }
+  const int bytes_per_sample = raw.bits / 8;
+  check_size(path, raw.width, raw.height, raw.channels, bytes_per_sample);
+  const std::uint64_t pixels = std::uint64_t(raw.width) * std::uint64_t(raw.height);
+  const std::uint64_t expected = raw.header_bytes + pixels * raw.channels * bytes_per_sample;
+  if (file_size != expected) {
+    throw InputError(cat(path, ": raw slice has ", file_size, " bytes, expected ", expected, " (",
+                         raw.width, "x", raw.height, "x", raw.channels, " at ", raw.bits,
+                         " bit, header ", raw.header_bytes, " bytes)"));
+  }
+  const std::string bytes = read_file(path, expected + 1);
+  if (bytes.size() != expected) {
+    throw InputError(cat(path, ": raw slice changed size while reading (", bytes.size(),
+                         " bytes, expected ", expected, ")"));
+  }
+  const auto* data = reinterpret_cast<const std::uint8_t*>(bytes.data()) + raw.header_bytes;
+  const int type = CV_MAKETYPE(raw.bits == 8 ? CV_8U : CV_16U, raw.channels);
+  cv::Mat image(raw.height, raw.width, type);
+  const int channels = raw.channels;
+  const bool swap = raw.bits == 16 && raw.big_endian;
+  auto sample = [&](std::uint64_t i) -> std::uint16_t {
+    if (bytes_per_sample == 1) return data[i];
+    const std::uint8_t lo = data[2 * i], hi = data[2 * i + 1];
+    return swap ? std::uint16_t(lo << 8 | hi) : std::uint16_t(hi << 8 | lo);
+  };
+  for (int y = 0; y < raw.height; ++y) {
+    for (int x = 0; x < raw.width; ++x) {
+      const std::uint64_t pixel = std::uint64_t(y) * raw.width + x;
+      for (int c = 0; c < channels; ++c) {
+        const std::uint64_t i = raw.planar ? c * pixels + pixel : pixel * channels + c;
+        const std::uint16_t v = sample(i);
+        if (bytes_per_sample == 1) {
+          image.ptr<std::uint8_t>(y)[x * channels + c] = static_cast<std::uint8_t>(v);
+        } else {
+          image.ptr<std::uint16_t>(y)[x * channels + c] = v;
+        }
+      }
+    }
+  }
+  return image;
+}
+
+cv::Mat read_oiio(const std::string& path) {
+  OIIO::ImageSpec config;
+  config.attribute("oiio:UnassociatedAlpha", 1);  // keep colour as stored next to an alpha
+  auto input = OIIO::ImageInput::open(path, &config);
+  if (!input) {
+    std::string why = OIIO::geterror();
+    if (why.empty()) why = "unknown image format";
+    throw InputError(cat(path, ": cannot read image: ", why));
+  }
+  const OIIO::ImageSpec& spec = input->spec();
+  if (spec.depth > 1) {
+    throw InputError(cat(path, ": volume images (depth ", spec.depth, ") are not slices"));
+  }
+  const int file_channels = spec.nchannels;
+  int channels = 0;
+  if (file_channels == 1 || file_channels == 2) {
+    channels = 1;  // grey (+ alpha, dropped)
+  } else if (file_channels == 3 || file_channels == 4) {
+    channels = 3;  // RGB (+ alpha, dropped)
+  } else {
+    throw InputError(cat(path, ": image with ", file_channels, " channels (1 to 4 supported)"));
+  }
+  const bool eight_bit =
+      spec.format.basetype == OIIO::TypeDesc::UINT8 || spec.format.basetype == OIIO::TypeDesc::INT8;
+  const OIIO::TypeDesc want = eight_bit ? OIIO::TypeDesc::UINT8 : OIIO::TypeDesc::UINT16;
+  check_size(path, spec.width, spec.height, file_channels, 4);
+  cv::Mat image(spec.height, spec.width, CV_MAKETYPE(eight_bit ? CV_8U : CV_16U, channels));
+  const bool ok = input->read_image(0, 0, 0, channels, want, image.data);
+  if (!ok) {
+    std::string why = input->geterror();
+    if (why.empty()) why = "read failed";
+    throw InputError(cat(path, ": cannot read image (truncated or corrupt?): ", why));
+  }
+  // Some decoders report a truncated stream only through the error buffer.
+  if (input->has_error()) {
+    throw InputError(cat(path, ": image is truncated or corrupt: ", input->geterror()));
+  }
+  input->close();
+  return image;
+}
+
+}  // namespace
+
+std::vector<SliceFile> list_slices(const SliceSource& source) {
+  const std::string& pattern = source.pattern;
+  const auto token = pattern.find("{n}");
+  if (token == std::string::npos || pattern.find("{n}", token + 1) != std::string::npos) {
+    throw ConfigError(
+        cat("pattern \"", pattern, "\" for folder ", source.dir, " must contain {n} exactly once"));
+  }
+  const std::string prefix = pattern.substr(0, token);
+  const std::string suffix = pattern.substr(token + 3);
+  std::error_code ec;
+  if (!fs::is_directory(source.dir, ec)) {
+    throw ConfigError(
+        cat("slice folder ", source.dir, " does not exist (pattern \"", pattern, "\")"));
+  }
+  std::vector<SliceFile> files;
+  fs::directory_iterator it(source.dir, ec);
+  if (ec) {
+    throw ConfigError(cat("cannot list slice folder ", source.dir, ": ", ec.message()));
+  }
+  for (; it != fs::directory_iterator(); it.increment(ec)) {
+    if (ec) throw ConfigError(cat("cannot list slice folder ", source.dir, ": ", ec.message()));
+    const std::string name = it->path().filename().string();
+    if (name.size() <= prefix.size() + suffix.size()) continue;
+    if (name.compare(0, prefix.size(), prefix) != 0) continue;
+    if (name.compare(name.size() - suffix.size(), suffix.size(), suffix) != 0) continue;
+    const std::string digits =
+        name.substr(prefix.size(), name.size() - prefix.size() - suffix.size());
+    if (!std::all_of(digits.begin(), digits.end(), [](char c) { return c >= '0' && c <= '9'; })) {
+      continue;
+    }
+    const auto first = digits.find_first_not_of('0');
+    const std::string significant = first == std::string::npos ? "0" : digits.substr(first);
+    if (significant.size() > 9) {
+      throw ConfigError(cat(source.dir, "/", name, ": slice number ", digits, " is too large"));
+    }
+    std::error_code type_ec;
+    if (it->is_directory(type_ec)) continue;
+    files.push_back({std::stoi(significant), (fs::path(source.dir) / name).string()});
+  }
+  if (files.empty()) {
+    throw ConfigError(cat("no file in ", source.dir, " matches the pattern \"", pattern, "\""));
+  }
+  std::sort(files.begin(), files.end(), [](const SliceFile& a, const SliceFile& b) {
+    return a.number != b.number ? a.number < b.number : a.path < b.path;
+  });
+  for (std::size_t i = 1; i < files.size(); ++i) {
+    if (files[i].number == files[i - 1].number) {
+      throw ConfigError(cat("slice number ", files[i].number, " appears twice in ", source.dir,
+                            ": ", fs::path(files[i - 1].path).filename().string(), " and ",
+                            fs::path(files[i].path).filename().string()));
+    }
+  }
+  return files;
+}
+
+cv::Mat read_slice(const std::string& path, const std::optional<RawLayout>& raw) {
+  std::error_code ec;
+  const auto status = fs::status(path, ec);
+  if (ec || !fs::exists(status)) {
+    throw InputError(cat(path, ": cannot read slice: file does not exist"));
+  }
+  if (!fs::is_regular_file(status)) {
+    throw InputError(cat(path, ": cannot read slice: not a regular file"));
+  }
+  const std::uint64_t size = fs::file_size(path, ec);
+  if (ec) throw InputError(cat(path, ": cannot read slice: ", ec.message()));
+  if (size == 0) throw InputError(cat(path, ": slice file is empty (0 bytes)"));
+  if (raw) return read_raw(path, *raw, size);
+  return read_oiio(path);
+}
+
+void write_image(const std::string& path, const cv::Mat& image, int jpeg_quality) {
+  const std::string ext = extension_of(path);
+  std::string format;
+  if (ext == ".png") {
+    format = "png";
+  } else if (ext == ".tif" || ext == ".tiff") {
+    format = "tiff";
+  } else if (ext == ".jpg" || ext == ".jpeg") {
+    format = "jpeg";
+  } else if (ext == ".bmp") {
+    format = "bmp";
+  } else {
+    throw IoError(cat(path, ": cannot write image: unsupported extension \"", ext,
+                      "\" (use .png, .tif, .tiff, .jpg, .jpeg or .bmp)"));
+  }
+  if (image.empty() || image.dims != 2) throw IoError(cat(path, ": cannot write an empty image"));
+  const int depth = image.depth();
+  const int channels = image.channels();
+  if ((depth != CV_8U && depth != CV_16U) || (channels != 1 && channels != 3 && channels != 4)) {
+    throw IoError(cat(path,
+                      ": cannot write image: pixel type must be 8 or 16 bit with 1, 3 or 4 "
+                      "channels (got depth ",
+                      depth, ", ", channels, " channels)"));
+  }
+  if ((format == "jpeg" || format == "bmp") && (depth != CV_8U || channels == 4)) {
+    throw IoError(cat(path, ": cannot write ", format, ": needs 8-bit grey or RGB"));
+  }
+  if (jpeg_quality < 1 || jpeg_quality > 100) {
+    throw IoError(cat(path, ": JPEG quality ", jpeg_quality, " is outside 1..100"));
+  }
+  const cv::Mat pixels = image.isContinuous() ? image : image.clone();
+  OIIO::ImageSpec spec(pixels.cols, pixels.rows, channels,
+                       depth == CV_8U ? OIIO::TypeDesc::UINT8 : OIIO::TypeDesc::UINT16);
+  if (channels == 4) {
+    spec.alpha_channel = 3;
+    spec.attribute("oiio:UnassociatedAlpha", 1);  // the colour is stored as given
+  }
+  if (format == "png") {
+    spec.attribute("png:compressionLevel", 4);  // fixed: deterministic bytes, fast enough
+  } else if (format == "tiff") {
+    spec.attribute("compression", "zip");
+  } else {
+    spec.attribute("Compression", cat("jpeg:", jpeg_quality));
+    spec.attribute("CompressionQuality", jpeg_quality);
+  }
+
+  auto output = OIIO::ImageOutput::create(format);
+  if (!output) throw IoError(cat(path, ": cannot write image: ", OIIO::geterror()));
+  std::vector<unsigned char> buffer;
+  OIIO::Filesystem::IOVecOutput proxy(buffer);
+  if (!output->supports("ioproxy")) {
+    throw IoError(
+        cat(path, ": cannot write image: the ", format, " writer cannot write to memory"));
+  }
+  if (!output->set_ioproxy(&proxy) || !output->open(path, spec, OIIO::ImageOutput::Create)) {
+    throw IoError(cat(path, ": cannot write image: ", output->geterror()));
+  }
+  if (!output->write_image(spec.format, pixels.data) || !output->close()) {
+    throw IoError(cat(path, ": cannot write image: ", output->geterror()));
+  }
+  write_file_atomic(path, buffer.data(), buffer.size());
+}
+
+void write_raw_slice(const std::string& path, const cv::Mat& image, const RawLayout& layout) {
+  if (image.cols != layout.width || image.rows != layout.height ||
+      image.channels() != layout.channels) {
+    throw IoError(cat(path, ": cannot write raw slice: image is ", image.cols, "x", image.rows, "x",
+                      image.channels(), ", layout says ", layout.width, "x", layout.height, "x",
+                      layout.channels));
+  }
+  const int want_depth = layout.bits == 8 ? CV_8U : layout.bits == 16 ? CV_16U : -1;
+  if (image.depth() != want_depth) {
+    throw IoError(
+        cat(path, ": cannot write raw slice: image depth does not match ", layout.bits, " bit"));
+  }
+  const int bytes_per_sample = layout.bits / 8;
+  const int channels = layout.channels;
+  const std::uint64_t pixels = std::uint64_t(layout.width) * std::uint64_t(layout.height);
+  std::vector<std::uint8_t> bytes(layout.header_bytes + pixels * channels * bytes_per_sample, 0);
+  std::uint8_t* data = bytes.data() + layout.header_bytes;
+  for (int y = 0; y < layout.height; ++y) {
+    for (int x = 0; x < layout.width; ++x) {
+      const std::uint64_t pixel = std::uint64_t(y) * layout.width + x;
+      for (int c = 0; c < channels; ++c) {
+        const std::uint64_t i = layout.planar ? c * pixels + pixel : pixel * channels + c;
+        if (bytes_per_sample == 1) {
+          data[i] = image.ptr<std::uint8_t>(y)[x * channels + c];
+        } else {
+          const std::uint16_t v = image.ptr<std::uint16_t>(y)[x * channels + c];
+          const std::uint8_t hi = std::uint8_t(v >> 8), lo = std::uint8_t(v & 0xff);
+          data[2 * i] = layout.big_endian ? hi : lo;
+          data[2 * i + 1] = layout.big_endian ? lo : hi;
+        }
+      }
+    }
+  }
+  write_file_atomic(path, bytes.data(), bytes.size());
+}
+
+}  // namespace vispack::pipeline

@@ -1,0 +1,14 @@
+// vispack-register: slice-to-slice drift of the colour stack and the CT -> colour alignment.
+#include "vispack/pipeline/register.h"
+#include "vispack/pipeline/stage.h"
+
+int main(int argc, char** argv) {
+  return vispack::pipeline::stage_main(
+      "vispack-register", argc, argv,
+      "Registers the colour stack (rigid drift, jumps, black and duplicate slices) and aligns the "
+      "CT to it. Writes <work>/register/transforms.json, registered/rgb_NNNN.png and report.json. "
+      "Sharded runs (--slices A:B) compute their pair records; the run that completes the set "
+      "chains them, and each shard writes its registered slices once transforms.json exists "
+      "(run the shards twice).",
+      vispack::pipeline::run_register_stage);
+}

@@ -1,0 +1,129 @@
+// viewer_bench [--file X.vpk] [--size N] [--dims X,Y,Z]: speed against error of the slice
+// renderer, time to first frame and upload throughput, on whatever GL the headless context
+// gets (llvmpipe here). Without --file it writes a medium-sized synthetic volume (the size of
+// the `medium` phantom, 512x384x160, bricks of 64) to a temporary file first.
+// Prints a Markdown table for docs/BENCHMARKS.md.
+#include <unistd.h>
+
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <string>
+
+#include "../render/synthetic_volume.h"
+#include "vispack/common/cli.h"
+#include "vispack/format/writer.h"
+#include "vispack/render/reference.h"
+#include "vispack/viewer/context.h"
+#include "vispack/viewer/slice_renderer.h"
+
+using namespace vispack;
+using namespace vispack::render;
+
+namespace {
+double now() {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
+}
+}  // namespace
+
+int main(int argc, char** argv) {
+  return run_main("viewer_bench", argc, argv, [](Args& args) {
+    args.describe("[--file X.vpk] [--size N] [--dims X,Y,Z]", "Slice renderer benchmark.");
+    auto file = args.option("--file", "X.vpk", "packed volume (default: synthetic medium)");
+    auto size_opt = args.option_int("--size", "N", "frame size (default 256)");
+    std::string dims_text = args.option("--dims", "X,Y,Z", "synthetic dims", "512,384,160");
+    args.done();
+    std::setvbuf(stdout, nullptr, _IOLBF, 0);  // lines appear as they are measured
+    int size = int(size_opt.value_or(256));
+    std::string path;
+    std::filesystem::path tmp;
+    if (file) {
+      path = *file;
+    } else {
+      int d[3];
+      if (std::sscanf(dims_text.c_str(), "%d,%d,%d", &d[0], &d[1], &d[2]) != 3)
+        throw UsageError("--dims must be X,Y,Z");
+      tmp = std::filesystem::temp_directory_path() / ("viewer_bench_" + std::to_string(getpid()));
+      std::filesystem::create_directories(tmp);
+      path = (tmp / "medium.vpk").string();
+      double t0 = now();
+      auto v = synthetic::make_synthetic(d[0], d[1], d[2], {0.33, 0.33, 1.0});
+      format::WriterOptions o;
+      o.dims = v->geometry.dims;
+      o.spacing_mm = {0.33, 0.33, 1.0};
+      o.brick_edge = 64;
+      o.channels = {{"rgba", format::ChannelType::kRgba8},
+                    {"ct", format::ChannelType::kInt16},
+                    {"labels", format::ChannelType::kUint16}};
+      for (const Label& l : v->label_table)
+        o.label_table.push_back({l.id, l.name, l.colour});
+      format::write_volume(path, o, {v->rgba.data(), v->ct.data(), v->labels.data()});
+      std::printf("synthetic %dx%dx%d written in %.1f s\n", d[0], d[1], d[2], now() - t0);
+    }
+
+    // Time to first frame: open, context, coarsest level, one frame read back.
+    double t_open = now();
+    auto source = open_packed(path);
+    viewer::HeadlessContext context;
+    viewer::SliceRenderer renderer;
+    viewer::VolumeTextures coarse;
+    int coarsest = source->level_count() - 1;
+    coarse.upload(*source, coarsest, 0);
+    LevelGeometry g0 = source->level(0);
+    OrbitParams orbit;
+    orbit.target = g0.box().centre();
+    orbit.azimuth_deg = 30;
+    orbit.elevation_deg = 20;
+    Camera cam = orbit_camera(orbit, g0.box(), size, size);
+    RenderParams params;
+    params.opacity = 0.6;
+    params.label_colours = make_label_colours(source->labels(), 0.5);
+    renderer.render(coarse, cam, params);
+    renderer.read_rgba8();
+    double first_frame = now() - t_open;
+
+    viewer::VolumeTextures fine;
+    viewer::UploadStats up = fine.upload(*source, 0, 0);
+    std::printf("\n%s\n\n", context.description().c_str());
+    std::printf("| what | value |\n|---|---|\n");
+    std::printf("| volume | %lldx%lldx%lld, %d levels |\n", (long long)g0.dims[0],
+                (long long)g0.dims[1], (long long)g0.dims[2], source->level_count());
+    std::printf("| time to first frame (open + level %d + %dx%d frame) | %.3f s |\n", coarsest,
+                size, size, first_frame);
+    std::printf("| upload level 0 (%lld bricks, %.0f MB) | %.2f s, %.0f MB/s |\n",
+                (long long)up.bricks, up.bytes / 1e6, up.seconds, up.bytes / 1e6 / up.seconds);
+
+    VolumeData data = load_level(*source, 0);
+    std::printf(
+        "\n| mode | slices/voxel | slices | frame time (ms, %dx%d) | PSNR vs reference (dB) |\n"
+        "|---|---|---|---|---|\n",
+        size, size);
+    for (Mode m : {Mode::kColour, Mode::kLabels}) {
+      RenderParams p = params;
+      p.mode = m;
+      if (m == Mode::kCt) p.opacity = 0.3;
+      double t_ref = now();
+      Image8 ref = to_rgba8(render_reference(data, cam, p, {8}));
+      t_ref = now() - t_ref;
+      for (double s : {0.5, 1.0, 2.0, 4.0}) {
+        p.slices_per_voxel = s;
+        viewer::FrameInfo info = renderer.render(fine, cam, p);  // warm-up
+        renderer.read_rgba8();
+        const int reps = 2;
+        double t0 = now();
+        Image8 img;
+        for (int r = 0; r < reps; ++r) {
+          renderer.render(fine, cam, p);
+          img = renderer.read_rgba8();
+        }
+        double ms = (now() - t0) / reps * 1e3;
+        std::printf("| %s | %.1f | %lld | %.0f | %.1f |\n", mode_name(m), s, (long long)info.slices,
+                    ms, psnr_rgb(img, ref));
+      }
+      std::fprintf(stderr, "(reference %s: %.1f s)\n", mode_name(m), t_ref);
+    }
+    if (!tmp.empty()) std::filesystem::remove_all(tmp);
+    return 0;
+  });
+}

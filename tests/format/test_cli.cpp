@@ -1,0 +1,170 @@
+// Command-line tests: vispack-info / vispack-extract exit codes and outputs, and the Python
+// reader (scripts/vispack_read.py, written from SPEC.md alone) against the C++ reader.
+#include <gtest/gtest.h>
+#include <sys/wait.h>
+
+#include "format_test_util.h"
+#include "vispack/common/nrrd.h"
+
+using namespace vispack::format;
+using namespace vispack::format::testing;
+
+namespace {
+
+struct Result {
+  int code;
+  std::string out, err;
+};
+
+Result run(const std::string& command) {
+  const std::string out = temp_path("stdout.txt"), err = temp_path("stderr.txt");
+  int status = std::system((command + " >" + out + " 2>" + err).c_str());
+  Result r{WIFEXITED(status) ? WEXITSTATUS(status) : -1, vispack::read_file(out),
+           vispack::read_file(err)};
+  return r;
+}
+
+const std::string kBin = VISPACK_BIN_DIR;
+const std::string kInfo = kBin + "/vispack-info";
+const std::string kExtract = kBin + "/vispack-extract";
+
+class Cli : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    volume_ = new Volume(make_volume({45, 30, 20}, 3, 300));
+    path_ = new std::string(temp_path("cli.vpk"));
+    write(*path_, *volume_, options_for(*volume_, 8));
+  }
+  static void TearDownTestSuite() {
+    delete volume_;
+    delete path_;
+  }
+  static Volume* volume_;
+  static std::string* path_;
+};
+Volume* Cli::volume_ = nullptr;
+std::string* Cli::path_ = nullptr;
+
+TEST_F(Cli, InfoPrintsAndVerifies) {
+  Result r = run(kInfo + " " + *path_);
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("45 x 30 x 20"), std::string::npos) << r.out;
+  r = run(kInfo + " --json --verify " + *path_);
+  ASSERT_EQ(r.code, 0) << r.err;
+  auto j = nlohmann::json::parse(r.out);
+  EXPECT_EQ(j["verify"]["ok"], true);
+  EXPECT_EQ(j["channels"][1]["name"], "ct");
+  EXPECT_EQ(j["channels"][2]["type"], "uint16");
+  EXPECT_EQ(run(kInfo + " --help").code, 0);
+  EXPECT_EQ(run(kInfo).code, 2);
+  EXPECT_EQ(run(kInfo + " --bogus " + *path_).code, 2);
+  Result missing = run(kInfo + " " + temp_path("missing.vpk"));
+  EXPECT_EQ(missing.code, 3);
+  EXPECT_NE(missing.err.find("vispack-info: error: "), std::string::npos) << missing.err;
+}
+
+TEST_F(Cli, VerifyNamesTheFirstBadBrickAndExits4) {
+  Reader good = Reader::open(*path_);
+  const BrickInfo* victim = nullptr;
+  for (const BrickInfo& b : good.bricks()) {
+    if (b.codec != Codec::kUniform && b.level == 1) {
+      victim = &b;
+      break;
+    }
+  }
+  ASSERT_NE(victim, nullptr);
+  auto bytes = read_bytes(*path_);
+  bytes[victim->offset + victim->stored_size / 2] ^= 0x01;
+  const std::string bad = temp_path("bad.vpk");
+  write_bytes(bad, bytes);
+  Result r = run(kInfo + " --verify " + bad);
+  EXPECT_EQ(r.code, 4);
+  const std::string name =
+      vispack::cat("brick level 1 channel ", good.channels()[std::size_t(victim->channel)].name,
+                   " (", victim->brick[0], ",", victim->brick[1], ",", victim->brick[2], ")");
+  EXPECT_NE(r.err.find(name), std::string::npos) << r.err;
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << "one line: " << r.err;
+  // Without --verify the file still opens (the index is intact).
+  EXPECT_EQ(run(kInfo + " " + bad).code, 0);
+  // A truncated file is refused by open: exit 4.
+  bytes.resize(bytes.size() / 2);
+  write_bytes(bad, bytes);
+  EXPECT_EQ(run(kInfo + " " + bad).code, 4);
+  EXPECT_EQ(run(kExtract + " " + bad + " --channel ct -o " + temp_path("x.nrrd")).code, 4);
+}
+
+TEST_F(Cli, ExtractNrrdMatchesTheReaderWithSpacingAndOrigin) {
+  Reader r = Reader::open(*path_);
+  for (const char* channel : {"rgba", "ct", "labels"}) {
+    for (int level : {0, 1}) {
+      const std::string out = temp_path(std::string(channel) + ".nrrd");
+      Result run_result = run(kExtract + " " + *path_ + " --channel " + channel + " --level " +
+                              std::to_string(level) + " -o " + out);
+      ASSERT_EQ(run_result.code, 0) << run_result.err;
+      vispack::NrrdVolume v = vispack::read_nrrd(out);
+      EXPECT_EQ(v.dims, r.dims(level));
+      EXPECT_TRUE(v.data == r.read_level(channel, level)) << channel << " level " << level;
+      for (int a = 0; a < 3; ++a) {
+        // NRRD stores decimal text: 1e-9 mm is far below any printed precision loss that matters.
+        EXPECT_NEAR(v.spacing_mm[a], r.spacing_mm(level)[a], 1e-9);
+        EXPECT_NEAR(v.origin_mm[a], r.origin_mm(level)[a], 1e-9);
+      }
+      EXPECT_EQ(v.components, std::string(channel) == "rgba" ? 4 : 1);
+    }
+  }
+}
+
+TEST_F(Cli, ExtractSliceImagesAndUsageErrors) {
+  const std::string png = temp_path("ct.png");
+  Result r = run(kExtract + " " + *path_ + " --channel ct --z 7 -o " + png);
+  if (r.code == 2 && r.err.find("no OpenImageIO") != std::string::npos)
+    GTEST_SKIP() << "built without OpenImageIO";
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_GT(std::filesystem::file_size(png), 100u);
+  const std::string tif = temp_path("rgba.tif");
+  EXPECT_EQ(run(kExtract + " " + *path_ + " --channel rgba --level 1 --z 3 -o " + tif).code, 0);
+  EXPECT_TRUE(std::filesystem::exists(tif));
+  EXPECT_EQ(run(kExtract + " " + *path_ + " --channel nope -o " + temp_path("n.nrrd")).code, 2);
+  EXPECT_EQ(run(kExtract + " " + *path_ + " --channel ct --level 9 -o " + temp_path("n.nrrd")).code,
+            2);
+  EXPECT_EQ(run(kExtract + " " + *path_ + " --channel ct --z 20 -o " + temp_path("n.png")).code, 2);
+  EXPECT_EQ(run(kExtract + " " + *path_ + " --channel ct -o " + temp_path("n.png")).code, 2);
+  EXPECT_EQ(run(kExtract + " " + *path_ + " --channel ct -o " + temp_path("n.xyz")).code, 2);
+  EXPECT_EQ(run(kExtract + " " + *path_ + " --channel ct").code, 2);
+  EXPECT_EQ(run(kExtract + " --help").code, 0);
+}
+
+TEST_F(Cli, PythonReaderAgreesVoxelForVoxel) {
+  if (!std::filesystem::exists("/usr/bin/python3")) GTEST_SKIP() << "no /usr/bin/python3";
+  const std::string script = std::string(VISPACK_SOURCE_DIR) + "/scripts/vispack_read.py";
+  Result probe = run("/usr/bin/python3 -c 'import numpy, zstandard'");
+  if (probe.code != 0) GTEST_SKIP() << "python3-numpy or python3-zstandard missing: " << probe.err;
+  Reader r = Reader::open(*path_);
+  // Level 0 with --verify (checks the pure-Python xxHash64 against the C++ checksums).
+  for (int level = 0; level < r.level_count(); ++level) {
+    for (const auto& ch : r.channels()) {
+      const std::string raw = temp_path(ch.name + ".bin");
+      Result p = run("/usr/bin/python3 " + script + " " + *path_ +
+                     (level == 0 && ch.name == "rgba" ? " --verify" : "") + " --channel " +
+                     ch.name + " --level " + std::to_string(level) + " --raw " + raw);
+      ASSERT_EQ(p.code, 0) << p.err;
+      auto got = read_bytes(raw);
+      EXPECT_TRUE(got == r.read_level(ch.name, level)) << ch.name << " level " << level;
+    }
+  }
+  // A flipped payload byte: the Python verifier exits 4 too.
+  auto bytes = read_bytes(*path_);
+  for (const BrickInfo& b : r.bricks()) {
+    if (b.codec != Codec::kUniform) {
+      bytes[b.offset] ^= 0x80;
+      break;
+    }
+  }
+  const std::string bad = temp_path("pybad.vpk");
+  write_bytes(bad, bytes);
+  Result p = run("/usr/bin/python3 " + script + " --verify " + bad);
+  EXPECT_EQ(p.code, 4) << p.err;
+  EXPECT_NE(p.err.find("checksum"), std::string::npos) << p.err;
+}
+
+}  // namespace

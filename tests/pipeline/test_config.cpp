@@ -1,0 +1,374 @@
+// load_config: every key checked, defaults, relative paths; configs/schema.json agrees with the
+// loader key for key.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <functional>
+#include <set>
+
+#include "test_support.h"
+#include "vispack/common/atomic_file.h"
+#include "vispack/common/error.h"
+#include "vispack/pipeline/config.h"
+
+using namespace vispack;
+using namespace vispack::pipeline;
+using nlohmann::json;
+namespace fs = std::filesystem;
+
+namespace {
+
+void touch(const std::string& path) {
+  fs::create_directories(fs::path(path).parent_path());
+  std::ofstream(path) << "x";
+}
+
+// A folder with rgb/, ct/, seg/ slices (names only: the loader does not read pixels),
+// palette.json and id_map.json.
+void make_inputs(const test::TempDir& dir) {
+  for (int i = 0; i < 3; ++i) {
+    char name[64];
+    std::snprintf(name, sizeof name, "%04d", i);
+    touch(dir / (std::string("data/rgb/rgb_") + name + ".png"));
+    touch(dir / (std::string("data/ct/ct_") + name + ".png"));
+    touch(dir / (std::string("data/seg/seg_") + name + ".png"));
+    touch(dir / (std::string("data/raw/c") + name + ".raw"));
+  }
+  write_file_atomic(dir / "data/palette.json",
+                    R"({"labels":[{"id":1,"name":"a","colour":[1,2,3]}]})");
+  write_file_atomic(dir / "data/id_map.json", R"({"1": 2})");
+}
+
+// Every key the loader accepts, with a valid value (seg in mode "id" so that id_map is allowed).
+json full_config() {
+  return json::parse(R"({
+    "name": "full", "work_dir": "w", "output": "o/v.vpk", "vdb_output": "o/v.vdb",
+    "spacing_mm": [0.33, 0.33, 1.0],
+    "rgb": { "dir": "data/raw", "pattern": "c{n}.raw",
+             "raw": { "width": 16, "height": 8, "channels": 3, "layout": "planar", "bits": 8,
+                      "endian": "little", "header_bytes": 0 } },
+    "ct": { "dir": "data/ct", "pattern": "ct_{n}.png", "pixel_spacing_mm": [0.9, 0.9],
+            "slope": 1.0, "intercept": -1024.0, "slice_offset": 0,
+            "raw": { "width": 4, "height": 4, "channels": 1, "layout": "interleaved", "bits": 16,
+                     "endian": "big", "header_bytes": 10 } },
+    "seg": { "dir": "data/seg", "pattern": "seg_{n}.png", "palette": "data/palette.json",
+             "mode": "id", "tolerance": 24, "strict": false, "id_map": "data/id_map.json",
+             "raw": { "width": 16, "height": 8, "channels": 1, "layout": "interleaved", "bits": 16,
+                      "endian": "little", "header_bytes": 0 } },
+    "register": { "enabled": true, "method": "phase+ecc", "ecc_scale": 0.5, "ecc_iterations": 50,
+                  "jump_px": 6.0, "ct_refine": true,
+                  "ct_initial": { "scale": 0.8, "rotation_deg": 0, "dx_px": 0, "dy_px": 0 } },
+    "mask": { "hu_threshold": -400, "opening_px": 1, "refine_gel": true, "gel_colour": [30, 60, 200],
+              "gel_distance": 40 },
+    "pack": { "brick_edge": 64, "zstd_level": 3, "downsample": 1, "threads": 0 },
+    "vdb": { "enabled": true }
+  })");
+}
+
+std::string write_config(const test::TempDir& dir, const json& config,
+                         const std::string& name = "c.json") {
+  std::string path = dir / name;
+  write_file_atomic(path, config.dump(2));
+  return path;
+}
+
+// Runs load_config and returns the ConfigError message ("" when it loads).
+std::string config_error(const std::string& path) {
+  try {
+    load_config(path);
+  } catch (const ConfigError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+// Follows "$ref": "#/$defs/x" inside the schema.
+const json& deref(const json& schema, const json& node) {
+  if (node.is_object() && node.contains("$ref")) {
+    std::string ref = node["$ref"];
+    const std::string prefix = "#/$defs/";
+    EXPECT_EQ(ref.rfind(prefix, 0), 0u) << ref;
+    return schema["$defs"][ref.substr(prefix.size())];
+  }
+  return node;
+}
+
+// Key paths ("ct.raw.width") of every property in the schema.
+void schema_keys(const json& schema, const json& node, const std::string& prefix,
+                 std::set<std::string>& out) {
+  const json& n = deref(schema, node);
+  if (!n.is_object() || !n.contains("properties")) return;
+  for (auto& [key, child] : n["properties"].items()) {
+    std::string path = prefix.empty() ? key : prefix + "." + key;
+    out.insert(path);
+    schema_keys(schema, child, path, out);
+  }
+}
+
+void config_keys(const json& node, const std::string& prefix, std::set<std::string>& out) {
+  if (!node.is_object()) return;
+  for (auto& [key, child] : node.items()) {
+    std::string path = prefix.empty() ? key : prefix + "." + key;
+    out.insert(path);
+    config_keys(child, path, out);
+  }
+}
+
+// A minimal JSON-Schema check of the subset schema.json uses (type, enum, const-free ranges,
+// array sizes, additionalProperties false, required). Returns "" or the first problem.
+std::string schema_check(const json& schema, const json& node_in, const json& value,
+                         const std::string& where) {
+  const json& node = deref(schema, node_in);
+  if (node.contains("type")) {
+    std::vector<std::string> types;
+    if (node["type"].is_array())
+      for (auto& t : node["type"])
+        types.push_back(t);
+    else
+      types.push_back(node["type"]);
+    bool ok = false;
+    for (auto& t : types) {
+      if ((t == "object" && value.is_object()) || (t == "array" && value.is_array()) ||
+          (t == "string" && value.is_string()) || (t == "boolean" && value.is_boolean()) ||
+          (t == "number" && value.is_number()) || (t == "null" && value.is_null()) ||
+          (t == "integer" && (value.is_number_integer() || value.is_number_unsigned())))
+        ok = true;
+    }
+    if (!ok) return where + ": wrong type";
+  }
+  if (node.contains("enum")) {
+    bool ok = false;
+    for (auto& e : node["enum"])
+      ok = ok || e == value;
+    if (!ok) return where + ": not in enum";
+  }
+  if (value.is_number()) {
+    double x = value;
+    if (node.contains("minimum") && x < double(node["minimum"])) return where + ": below minimum";
+    if (node.contains("maximum") && x > double(node["maximum"])) return where + ": above maximum";
+    if (node.contains("exclusiveMinimum") && x <= double(node["exclusiveMinimum"]))
+      return where + ": below exclusiveMinimum";
+  }
+  if (value.is_array()) {
+    if (node.contains("minItems") && value.size() < node["minItems"])
+      return where + ": too few items";
+    if (node.contains("maxItems") && value.size() > node["maxItems"])
+      return where + ": too many items";
+    if (node.contains("items"))
+      for (std::size_t i = 0; i < value.size(); ++i) {
+        std::string r =
+            schema_check(schema, node["items"], value[i], where + "[" + std::to_string(i) + "]");
+        if (!r.empty()) return r;
+      }
+  }
+  if (value.is_object()) {
+    if (node.contains("required"))
+      for (auto& key : node["required"])
+        if (!value.contains(key.get<std::string>()))
+          return where + ": missing " + key.get<std::string>();
+    for (auto& [key, child] : value.items()) {
+      if (key[0] == '_') continue;
+      if (node.contains("properties") && node["properties"].contains(key)) {
+        std::string r = schema_check(schema, node["properties"][key], child, where + "." + key);
+        if (!r.empty()) return r;
+      } else if (node.value("additionalProperties", true) == false) {
+        return where + "." + key + ": not allowed";
+      }
+    }
+  }
+  return "";
+}
+
+json load_schema() {
+  return json::parse(read_file(std::string(VISPACK_SOURCE_DIR) + "/configs/schema.json"));
+}
+
+}  // namespace
+
+TEST(Config, FullConfigLoadsWithResolvedPaths) {
+  test::TempDir dir;
+  make_inputs(dir);
+  Config c = load_config(write_config(dir, full_config()));
+  EXPECT_EQ(c.name, "full");
+  EXPECT_EQ(c.work_dir, dir / "w");
+  EXPECT_EQ(c.output, dir / "o/v.vpk");
+  EXPECT_EQ(c.vdb_output, dir / "o/v.vdb");
+  EXPECT_EQ(c.rgb.dir, dir / "data/raw");
+  ASSERT_TRUE(c.rgb.raw.has_value());
+  EXPECT_EQ(c.rgb.raw->width, 16);
+  EXPECT_TRUE(c.rgb.raw->planar);
+  ASSERT_TRUE(c.ct.has_value());
+  EXPECT_TRUE(c.ct->raw->big_endian);
+  EXPECT_EQ(c.ct->raw->bits, 16);
+  EXPECT_EQ(c.ct->raw->header_bytes, 10u);
+  EXPECT_DOUBLE_EQ(c.ct->pixel_spacing_mm[0], 0.9);
+  ASSERT_TRUE(c.seg.has_value());
+  EXPECT_EQ(c.seg->mode, "id");
+  EXPECT_EQ(c.seg->id_map, dir / "data/id_map.json");
+  EXPECT_EQ(c.seg->raw->channels, 1);
+  EXPECT_DOUBLE_EQ(c.registration.ct_initial.scale, 0.8);
+  ASSERT_TRUE(c.mask.gel_colour.has_value());
+  EXPECT_EQ((*c.mask.gel_colour)[2], 200);
+  EXPECT_EQ(c.pack.brick_edge, 64);
+}
+
+TEST(Config, DefaultsForAMinimalConfig) {
+  test::TempDir dir;
+  make_inputs(dir);
+  json j = {{"spacing_mm", {1, 1, 2}}, {"rgb", {{"dir", "data/rgb"}}}};
+  Config c = load_config(write_config(dir, j, "minimal.json"));
+  EXPECT_EQ(c.name, "minimal");
+  EXPECT_EQ(c.work_dir, dir / "work");
+  EXPECT_EQ(c.output, dir / "out/minimal.vpk");
+  EXPECT_EQ(c.vdb_output, dir / "out/minimal.vdb");
+  EXPECT_EQ(c.rgb.pattern, "rgb_{n}.png");
+  EXPECT_FALSE(c.ct.has_value());
+  EXPECT_FALSE(c.seg.has_value());
+  EXPECT_EQ(c.registration.method, "phase+ecc");
+  EXPECT_DOUBLE_EQ(c.mask.hu_threshold, -400.0);
+  EXPECT_EQ(c.pack.zstd_level, 3);
+  EXPECT_TRUE(c.vdb.enabled);
+  j["vdb"] = {{"enabled", false}};
+  EXPECT_EQ(load_config(write_config(dir, j, "minimal.json")).vdb_output, "");
+}
+
+TEST(Config, ErrorsNameTheKey) {
+  test::TempDir dir;
+  make_inputs(dir);
+  struct Case {
+    std::function<void(json&)> edit;
+    std::string expected;  // a substring of the error
+  };
+  std::vector<Case> cases = {
+      {[](json& j) { j["colour"] = 1; }, "colour: unknown key"},
+      {[](json& j) { j["ct"]["pixel_spacing"] = 1; }, "ct.pixel_spacing: unknown key"},
+      {[](json& j) { j["ct"]["pixel_spacing_mm"] = "0.9"; },
+       "ct.pixel_spacing_mm: must be an array"},
+      {[](json& j) {
+         j["ct"]["pixel_spacing_mm"] = {0.9, -1};
+       },
+       "ct.pixel_spacing_mm[1]"},
+      {[](json& j) { j["ct"].erase("pixel_spacing_mm"); }, "ct.pixel_spacing_mm: missing"},
+      {[](json& j) {
+         j["spacing_mm"] = {1, 1};
+       },
+       "spacing_mm: must be an array of 3"},
+      {[](json& j) { j.erase("rgb"); }, "rgb: missing"},
+      {[](json& j) { j["rgb"]["dir"] = "nowhere"; }, "rgb.dir: folder"},
+      {[](json& j) { j["rgb"]["pattern"] = "x_{n}.tif"; }, "rgb.pattern"},
+      {[](json& j) { j["rgb"]["pattern"] = "rgb.png"; }, "rgb.pattern: \"rgb.png\" has no {n}"},
+      {[](json& j) { j["rgb"]["raw"]["layout"] = "tiled"; },
+       "rgb.raw.layout: \"tiled\" is not one of"},
+      {[](json& j) { j["rgb"]["raw"]["bits"] = 12; }, "rgb.raw.bits: must be 8 or 16"},
+      {[](json& j) { j["rgb"]["raw"].erase("width"); }, "rgb.raw.width: missing"},
+      {[](json& j) { j["seg"]["palette"] = "none.json"; }, "seg.palette: file"},
+      {[](json& j) { j["seg"]["mode"] = "colour"; }, "seg.id_map: only allowed in mode \"id\""},
+      {[](json& j) { j["seg"]["tolerance"] = 500; }, "seg.tolerance: 500 is out of range"},
+      {[](json& j) { j["seg"]["strict"] = 1; }, "seg.strict: must be true or false"},
+      {[](json& j) { j["register"]["method"] = "sift"; }, "register.method"},
+      {[](json& j) { j["register"]["ecc_scale"] = 0; }, "register.ecc_scale: 0 is out of range (0"},
+      {[](json& j) { j["register"]["ct_initial"]["scale"] = "big"; },
+       "register.ct_initial.scale: must be a number"},
+      {[](json& j) { j["mask"]["opening_px"] = 1.5; }, "mask.opening_px: must be an integer"},
+      {[](json& j) {
+         j["mask"]["gel_colour"] = {1, 2, 300};
+       },
+       "mask.gel_colour[2]"},
+      {[](json& j) { j["pack"]["brick_edge"] = 48; }, "pack.brick_edge: 48 is not a power of two"},
+      {[](json& j) { j["pack"]["zstd_level"] = 23; }, "pack.zstd_level: 23 is out of range"},
+      {[](json& j) { j["vdb"]["enable"] = true; }, "vdb.enable: unknown key"},
+      {[](json& j) { j["vdb_output"] = j["output"]; }, "vdb_output: must differ from output"},
+  };
+  for (const auto& c : cases) {
+    json j = full_config();
+    c.edit(j);
+    std::string error = config_error(write_config(dir, j));
+    EXPECT_NE(error.find(c.expected), std::string::npos)
+        << "expected '" << c.expected << "' in '" << error << "' for " << j.dump();
+    EXPECT_NE(error.find(dir / "c.json"), std::string::npos) << error;
+  }
+}
+
+TEST(Config, CommentsAreAccepted) {
+  test::TempDir dir;
+  make_inputs(dir);
+  write_file_atomic(dir / "commented.json", R"({
+    // a line comment
+    "_comment": "underscore keys are comments",
+    "spacing_mm": [1, 1, 1], /* a block comment */
+    "rgb": { "dir": "data/rgb", "_note": "ignored too" }
+  })");
+  EXPECT_EQ(load_config(dir / "commented.json").spacing_mm[2], 1.0);
+  write_file_atomic(dir / "broken.json", R"({ "spacing_mm": [1, 1, 1], )");
+  EXPECT_NE(config_error(dir / "broken.json").find("not valid JSON"), std::string::npos);
+  EXPECT_THROW(load_config(dir / "absent.json"), IoError);
+}
+
+TEST(Config, SectionHashTracksOnlyItsSections) {
+  test::TempDir dir;
+  make_inputs(dir);
+  json j = full_config();
+  Config a = load_config(write_config(dir, j));
+  j["mask"]["hu_threshold"] = -300;
+  j["pack"]["_comment"] = "comments do not change hashes";
+  Config b = load_config(write_config(dir, j));
+  EXPECT_EQ(config_section_hash(a, {"register", "rgb"}),
+            config_section_hash(b, {"register", "rgb"}));
+  EXPECT_EQ(config_section_hash(a, {"pack"}), config_section_hash(b, {"pack"}));
+  EXPECT_NE(config_section_hash(a, {"mask"}), config_section_hash(b, {"mask"}));
+  EXPECT_NE(config_section_hash(a, {"register", "mask"}),
+            config_section_hash(b, {"register", "mask"}));
+  EXPECT_EQ(config_section_hash(a, {"mask"}).size(), 16u);
+  // Single keys: register may depend on mask.gel_distance without depending on hu_threshold.
+  EXPECT_EQ(config_section_hash(a, {"mask.gel_distance"}),
+            config_section_hash(b, {"mask.gel_distance"}));
+  EXPECT_NE(config_section_hash(a, {"mask.hu_threshold"}),
+            config_section_hash(b, {"mask.hu_threshold"}));
+  EXPECT_NE(config_section_hash(a, {"mask.gel_distance"}),
+            config_section_hash(a, {"mask.hu_threshold"}));
+}
+
+// The schema and the loader accept the same keys: the full config uses every key of the
+// schema and nothing else, validates against the schema, and loads; removing any key of it that
+// the schema does not require still loads, and renaming any key makes both reject it.
+TEST(Config, SchemaAndLoaderAgreeKeyForKey) {
+  test::TempDir dir;
+  make_inputs(dir);
+  json schema = load_schema();
+  std::set<std::string> in_schema, in_config;
+  schema_keys(schema, schema, "", in_schema);
+  json full = full_config();
+  config_keys(full, "", in_config);
+  for (const auto& key : in_schema)
+    EXPECT_TRUE(in_config.count(key)) << key << " is in the schema only";
+  for (const auto& key : in_config)
+    EXPECT_TRUE(in_schema.count(key)) << key << " is in the test config only";
+  // The loader's own table of keys (used for unknown-key errors) agrees too.
+  std::set<std::string> in_loader;
+  for (const auto& key : config_key_paths())
+    in_loader.insert(key);
+  EXPECT_EQ(in_loader, in_config);
+  EXPECT_EQ(schema_check(schema, schema, full, "$"), "");
+  EXPECT_EQ(config_error(write_config(dir, full)), "");
+
+  for (const std::string& key : in_config) {
+    // Rename the key: the loader must name it as unknown, the schema must refuse it.
+    json j = full;
+    json* parent = &j;
+    std::string last = key;
+    for (std::size_t dot; (dot = last.find('.')) != std::string::npos; last = last.substr(dot + 1))
+      parent = &(*parent)[last.substr(0, dot)];
+    (*parent)[last + "_typo"] = (*parent)[last];
+    parent->erase(last);
+    std::string error = config_error(write_config(dir, j));
+    EXPECT_NE(error.find(key + "_typo: unknown key"), std::string::npos) << key << ": " << error;
+    EXPECT_NE(schema_check(schema, schema, j, "$"), "") << key;
+  }
+  // Sample configs shipped in configs/ validate against the schema too.
+  for (const char* name : {"phantom-small.json", "vhp-male.template.json"}) {
+    json sample = json::parse(read_file(std::string(VISPACK_SOURCE_DIR) + "/configs/" + name),
+                              nullptr, true, true);
+    EXPECT_EQ(schema_check(schema, schema, sample, "$"), "") << name;
+  }
+}

@@ -1,0 +1,146 @@
+// Body masks: the cleaning steps on synthetic CT/colour images, and the stage on the small
+// phantom against truth/mask.nrrd; command-line exit codes.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+
+#include <opencv2/imgproc.hpp>
+
+#include "test_support.h"
+#include "vispack/common/nrrd.h"
+#include "vispack/pipeline/config.h"
+#include "vispack/pipeline/mask.h"
+#include "vispack/pipeline/phantom.h"
+#include "vispack/pipeline/register.h"
+#include "vispack/pipeline/slice_io.h"
+#include "vispack/pipeline/stage.h"
+
+namespace vp = vispack::pipeline;
+using vispack::test::bin;
+using vispack::test::run_command;
+using vispack::test::TempDir;
+
+namespace {
+
+double iou(const cv::Mat& a, const cv::Mat& b) {
+  const double inter = cv::countNonZero(a & b), uni = cv::countNonZero(a | b);
+  return uni > 0 ? inter / uni : 1.0;
+}
+
+}  // namespace
+
+TEST(Mask, CtMaskDropsHeadHolderAndFillsLungs) {
+  // CT 128×128 in HU: air −1000, a body disc of +40 HU with an air "lung" inside, and a
+  // head-holder arc (+200 HU, radius 46, 3 px thick) joined to the body by a 2-px bridge.
+  cv::Mat ct(128, 128, CV_32F, cv::Scalar(-1000));
+  cv::circle(ct, {64, 60}, 40, cv::Scalar(40), -1);
+  cv::circle(ct, {54, 60}, 10, cv::Scalar(-850), -1);                   // lung (air, enclosed)
+  cv::ellipse(ct, {64, 60}, {46, 46}, 0, 30, 150, cv::Scalar(200), 3);  // holder arc below
+  cv::line(ct, {64, 100}, {64, 106}, cv::Scalar(200), 2);               // bridge
+  cv::Mat body = vp::ct_body_mask(ct, -400);
+  cv::Mat expect(128, 128, CV_8U, cv::Scalar(0));
+  cv::circle(expect, {64, 60}, 40, cv::Scalar(255), -1);
+  // The lung is inside the mask; the arc is outside.
+  EXPECT_EQ(body.at<std::uint8_t>(60, 54), 255);
+  EXPECT_EQ(body.at<std::uint8_t>(60 + 46, 64 + 5), 0);
+  EXPECT_EQ(body.at<std::uint8_t>(60 + 33, 64 + 33), 0);
+  // Everything but the bridge root agrees: IoU with the disc > 0.98 (the bridge keeps at most
+  // a few pixels within the regrowth radius kCtDetachPx + 1).
+  EXPECT_GT(iou(body, expect), 0.98);
+}
+
+TEST(Mask, GelRefinementRemovesEdgeGelAndNotchKeepsInnerGel) {
+  // Colour slice: gel (40, 70, 160) with a red body disc; a notch of gel cut into the body
+  // from the right, and a small gel-coloured spot fully inside. The "CT" mask is the disc
+  // grown by 4 px (covers gel at the edge) and ignores the notch.
+  const cv::Vec3b gel(40, 70, 160);
+  cv::Mat rgb(120, 160, CV_8UC3, cv::Scalar(gel[0], gel[1], gel[2]));
+  cv::circle(rgb, {80, 60}, 40, cv::Scalar(180, 90, 80), -1);
+  cv::rectangle(rgb, cv::Rect(105, 55, 20, 10), cv::Scalar(gel[0], gel[1], gel[2]), -1);  // notch
+  cv::circle(rgb, {70, 60}, 4, cv::Scalar(gel[0], gel[1], gel[2]), -1);                   // inner
+  cv::Mat ct_mask(120, 160, CV_8U, cv::Scalar(0));
+  cv::circle(ct_mask, {80, 60}, 44, cv::Scalar(255), -1);
+  cv::Mat refined = vp::remove_edge_gel(ct_mask, rgb, cv::Vec3f(gel[0], gel[1], gel[2]), 40);
+  EXPECT_EQ(refined.at<std::uint8_t>(60, 122), 0);      // notch removed
+  EXPECT_EQ(refined.at<std::uint8_t>(60, 70), 255);     // enclosed gel-coloured spot kept
+  EXPECT_EQ(refined.at<std::uint8_t>(60, 80 - 42), 0);  // edge gel removed
+  EXPECT_EQ(refined.at<std::uint8_t>(60, 80 - 38), 255);
+  // Gel colour from the border.
+  cv::Vec3f est = vp::estimate_gel_colour(rgb);
+  EXPECT_NEAR(est[0], 40, 0.5);
+  EXPECT_NEAR(est[2], 160, 0.5);
+  // Colour-only mask: a green tube separate from the body is not the largest component.
+  cv::circle(rgb, {10, 10}, 5, cv::Scalar(40, 200, 60), -1);
+  cv::Mat colour = vp::colour_body_mask(rgb, est, 40, 1);
+  EXPECT_EQ(colour.at<std::uint8_t>(10, 10), 0);
+  EXPECT_EQ(colour.at<std::uint8_t>(60, 70), 255);  // filled
+  EXPECT_EQ(colour.at<std::uint8_t>(60, 80), 255);
+}
+
+TEST(Mask, HuEncodingAndOverlay) {
+  cv::Mat hu = (cv::Mat_<float>(1, 4) << -1024, 0, 3071, -40000);
+  cv::Mat enc = vp::encode_hu16(hu);
+  EXPECT_EQ(enc.at<std::uint16_t>(0, 0), 32768 - 1024);
+  EXPECT_EQ(enc.at<std::uint16_t>(0, 1), 32768);
+  EXPECT_EQ(enc.at<std::uint16_t>(0, 2), 32768 + 3071);
+  EXPECT_EQ(enc.at<std::uint16_t>(0, 3), 0);  // clamped
+  cv::Mat rgb(20, 20, CV_8UC3, cv::Scalar(0, 0, 255));
+  cv::Mat mask(20, 20, CV_8U, cv::Scalar(0));
+  cv::rectangle(mask, cv::Rect(5, 5, 10, 10), cv::Scalar(255), -1);
+  cv::Mat o = vp::draw_mask_overlay(rgb, mask);
+  EXPECT_EQ(o.at<cv::Vec3b>(5, 8), cv::Vec3b(255, 255, 0));  // outline
+  EXPECT_EQ(o.at<cv::Vec3b>(10, 10), cv::Vec3b(0, 0, 255));  // interior unchanged
+}
+
+// The stages on the small phantom: register then mask, compared with truth/mask.nrrd.
+TEST(MaskStage, SmallPhantomMatchesTruth) {
+  TempDir dir("vispack-mask");
+  vp::PhantomOptions po;
+  po.preset = "small";
+  po.seed = 3;
+  po.quiet = true;
+  const vp::PhantomSummary summary = vp::make_phantom(dir.path(), po);
+  const vp::Config config = vp::load_config(dir / "config.json");
+  vp::StageOptions so;
+  so.quiet = true;
+  vp::run_register_stage(config, so);
+  vp::run_mask_stage(config, so);
+  const vispack::NrrdVolume truth = vispack::read_nrrd(dir / "truth/mask.nrrd");
+  ASSERT_EQ(truth.dims[0], 256);
+  ASSERT_EQ(truth.dims[2], summary.slices);
+  double inter = 0, uni = 0, worst = 1.0;
+  for (int k = 0; k < summary.slices; ++k) {
+    cv::Mat t(192, 256, CV_8U,
+              const_cast<std::uint8_t*>(truth.as<std::uint8_t>()) + std::size_t(k) * 256 * 192);
+    cv::Mat m = vp::read_slice(vp::mask_path(config, k));
+    ASSERT_EQ(m.type(), CV_8UC1);
+    cv::Mat tb = t > 0, mb = m > 0;
+    inter += cv::countNonZero(tb & mb);
+    uni += cv::countNonZero(tb | mb);
+    if (k != summary.black_slice) worst = std::min(worst, iou(tb, mb));
+    // Overlay and CT written on the output grid.
+    EXPECT_TRUE(std::filesystem::exists(vp::mask_ct_path(config, k)));
+  }
+  const double stack_iou = inter / uni;
+  RecordProperty("stack_iou", std::to_string(stack_iou));
+  // DESIGN.md section 7: IoU >= 0.99 against truth.
+  EXPECT_GE(stack_iou, 0.99);
+  EXPECT_GE(worst, 0.97) << "worst single slice";
+}
+
+TEST(MaskCli, ExitCodes) {
+  TempDir dir("vispack-mask-cli");
+  std::string out;
+  EXPECT_EQ(run_command(bin("vispack-mask") + " --help", &out), 0) << out;
+  EXPECT_NE(out.find("--config"), std::string::npos);
+  EXPECT_EQ(run_command(bin("vispack-register") + " --help", &out), 0) << out;
+  {
+    std::ofstream bad(dir / "bad.json");
+    bad << "{ \"name\": 3, \"nonsense\": true }";
+  }
+  EXPECT_EQ(run_command(bin("vispack-mask") + " --config " + (dir / "bad.json"), &out), 5) << out;
+  EXPECT_EQ(run_command(bin("vispack-register") + " --config " + (dir / "bad.json"), &out), 5)
+      << out;
+  EXPECT_EQ(run_command(bin("vispack-mask") + " --bogus", &out), 2) << out;
+}

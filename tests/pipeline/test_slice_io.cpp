@@ -1,0 +1,280 @@
+// Slice I/O: round trips through PNG/TIFF/JPEG and raw layouts, RGB channel order, errors.
+#include <gtest/gtest.h>
+
+#include <cstdint>
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include <opencv2/core.hpp>
+
+#include "test_support.h"
+#include "vispack/common/atomic_file.h"
+#include "vispack/common/error.h"
+#include "vispack/pipeline/slice_io.h"
+
+namespace vp = vispack::pipeline;
+using vispack::test::TempDir;
+
+namespace {
+
+// A deterministic test image with every channel different, so a channel swap shows.
+cv::Mat make_image(int width, int height, int type) {
+  cv::Mat image(height, width, type);
+  const int channels = image.channels();
+  const bool sixteen = image.depth() == CV_16U;
+  for (int y = 0; y < height; ++y) {
+    for (int x = 0; x < width; ++x) {
+      for (int c = 0; c < channels; ++c) {
+        const unsigned v = (x * 7 + y * 13 + c * 101 + x * y) & (sixteen ? 0xffff : 0xff);
+        const unsigned value = sixteen ? (v * 257 + c * 4099) & 0xffff : v;
+        if (sixteen) {
+          image.ptr<std::uint16_t>(y)[x * channels + c] = static_cast<std::uint16_t>(value);
+        } else {
+          image.ptr<std::uint8_t>(y)[x * channels + c] = static_cast<std::uint8_t>(value);
+        }
+      }
+    }
+  }
+  return image;
+}
+
+bool equal(const cv::Mat& a, const cv::Mat& b) {
+  if (a.size() != b.size() || a.type() != b.type()) return false;
+  return cv::norm(a, b, cv::NORM_INF) == 0;
+}
+
+void write_bytes(const std::string& path, const std::string& bytes) {
+  std::ofstream out(path, std::ios::binary);
+  out << bytes;
+}
+
+std::string read_bytes(const std::string& path) {
+  return vispack::read_file(path);
+}
+
+// Expects `fn` to throw E with a message containing `needle`.
+template <class E, class Fn>
+void expect_error(Fn fn, const std::string& needle) {
+  try {
+    fn();
+    ADD_FAILURE() << "no exception; expected one mentioning " << needle;
+  } catch (const E& e) {
+    EXPECT_NE(std::string(e.what()).find(needle), std::string::npos) << e.what();
+  }
+}
+
+}  // namespace
+
+class RoundTrip : public ::testing::TestWithParam<std::tuple<std::string, int>> {};
+
+TEST_P(RoundTrip, LosslessFormatsGiveBackTheSamePixels) {
+  const auto [extension, type] = GetParam();
+  TempDir dir;
+  const cv::Mat image = make_image(37, 23, type);
+  const std::string path = dir / ("image" + extension);
+  vp::write_image(path, image);
+  const cv::Mat back = vp::read_slice(path);
+  if (image.channels() == 4) {
+    // read_slice drops alpha: compare the colour.
+    cv::Mat rgb;
+    cv::Mat channels[4];
+    cv::split(image, channels);
+    cv::merge(channels, 3, rgb);
+    EXPECT_TRUE(equal(back, rgb));
+  } else {
+    EXPECT_TRUE(equal(back, image)) << extension << " type " << type;
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(Formats, RoundTrip,
+                         ::testing::Combine(::testing::Values(".png", ".tif", ".TIFF"),
+                                            ::testing::Values(CV_8UC1, CV_8UC3, CV_16UC1, CV_16UC3,
+                                                              CV_8UC4, CV_16UC4)));
+
+TEST(SliceIo, ChannelOrderIsRgbOnDisk) {
+  // Round trips cannot tell RGB from BGR (a swap on write and read cancels out), so also read
+  // binary PPM files written by hand: PPM stores R, G, B in that order by definition.
+  TempDir dir;
+  cv::Mat red(4, 4, CV_8UC3, cv::Scalar(255, 0, 0));  // channel 0 = R in vispack's convention
+  const std::string path = dir / "red.png";
+  vp::write_image(path, red);
+  const cv::Mat back = vp::read_slice(path);
+  ASSERT_EQ(back.type(), CV_8UC3);
+  EXPECT_EQ(back.at<cv::Vec3b>(0, 0), cv::Vec3b(255, 0, 0));
+  const std::string ppm = dir / "green.ppm";
+  write_bytes(ppm, std::string("P6\n1 1\n255\n") + std::string("\x00\xff\x00", 3));
+  const cv::Mat green = vp::read_slice(ppm);
+  ASSERT_EQ(green.type(), CV_8UC3);
+  EXPECT_EQ(green.at<cv::Vec3b>(0, 0), cv::Vec3b(0, 255, 0));
+  const std::string ppm_blue = dir / "blue.ppm";
+  write_bytes(ppm_blue, std::string("P6\n1 1\n255\n") + std::string("\x00\x00\xff", 3));
+  EXPECT_EQ(vp::read_slice(ppm_blue).at<cv::Vec3b>(0, 0), cv::Vec3b(0, 0, 255));
+}
+
+TEST(SliceIo, WriteIsDeterministic) {
+  TempDir dir;
+  const cv::Mat image = make_image(64, 48, CV_16UC3);
+  for (const std::string ext : {".png", ".tif", ".jpg", ".bmp"}) {
+    const cv::Mat src = ext == ".jpg" || ext == ".bmp" ? make_image(64, 48, CV_8UC3) : image;
+    vp::write_image(dir / ("a" + ext), src);
+    vp::write_image(dir / ("b" + ext), src);
+    EXPECT_EQ(read_bytes(dir / ("a" + ext)), read_bytes(dir / ("b" + ext))) << ext;
+    if (ext == ".bmp") EXPECT_TRUE(equal(vp::read_slice(dir / ("a" + ext)), src));  // lossless
+  }
+}
+
+TEST(SliceIo, JpegIsCloseAndQualityMatters) {
+  TempDir dir;
+  // A smooth image: JPEG at quality 95 stays within a few levels (8x8 DCT quantisation).
+  cv::Mat image(64, 64, CV_8UC3);
+  for (int y = 0; y < 64; ++y)
+    for (int x = 0; x < 64; ++x)
+      image.at<cv::Vec3b>(y, x) = cv::Vec3b(x * 3, y * 3, 128);
+  vp::write_image(dir / "q95.jpg", image, 95);
+  vp::write_image(dir / "q10.jpg", image, 10);
+  const cv::Mat hi = vp::read_slice(dir / "q95.jpg");
+  const cv::Mat lo = vp::read_slice(dir / "q10.jpg");
+  ASSERT_EQ(hi.type(), CV_8UC3);
+  const double err_hi = cv::norm(hi, image, cv::NORM_L1) / image.total() / 3;
+  const double err_lo = cv::norm(lo, image, cv::NORM_L1) / image.total() / 3;
+  EXPECT_LT(err_hi, 3.0);  // mean abs error per sample, quality 95 on a smooth ramp
+  EXPECT_GT(err_lo, err_hi);
+  EXPECT_LT(std::filesystem::file_size(dir / "q10.jpg"),
+            std::filesystem::file_size(dir / "q95.jpg"));
+}
+
+TEST(SliceIo, RawPlanarInterleavedAndBigEndian) {
+  TempDir dir;
+  struct Case {
+    int channels, bits;
+    bool planar, big;
+    std::uint64_t header;
+  };
+  for (const Case& c :
+       {Case{3, 8, true, false, 0}, Case{3, 8, false, false, 0}, Case{3, 16, true, true, 0},
+        Case{1, 16, false, true, 12}, Case{1, 8, false, false, 7}, Case{3, 16, false, false, 0}}) {
+    vp::RawLayout layout;
+    layout.width = 19;
+    layout.height = 11;
+    layout.channels = c.channels;
+    layout.bits = c.bits;
+    layout.planar = c.planar;
+    layout.big_endian = c.big;
+    layout.header_bytes = c.header;
+    const cv::Mat image = make_image(19, 11, CV_MAKETYPE(c.bits == 8 ? CV_8U : CV_16U, c.channels));
+    const std::string path = dir / "slice.raw";
+    vp::write_raw_slice(path, image, layout);
+    EXPECT_EQ(std::filesystem::file_size(path), c.header + 19 * 11 * c.channels * c.bits / 8);
+    EXPECT_TRUE(equal(vp::read_slice(path, layout), image))
+        << c.channels << " " << c.bits << " planar " << c.planar << " big " << c.big;
+  }
+}
+
+TEST(SliceIo, RawByteLayoutIsWhatNlmFilesUse) {
+  // Planar 8-bit: all R, then all G, then all B. 16-bit big-endian: high byte first.
+  TempDir dir;
+  vp::RawLayout planar{2, 1, 3, true, 8, false, 0};
+  write_bytes(dir / "p.raw", std::string("\x01\x02\x03\x04\x05\x06", 6));
+  const cv::Mat p = vp::read_slice(dir / "p.raw", planar);
+  EXPECT_EQ(p.at<cv::Vec3b>(0, 0), cv::Vec3b(1, 3, 5));
+  EXPECT_EQ(p.at<cv::Vec3b>(0, 1), cv::Vec3b(2, 4, 6));
+  vp::RawLayout big{1, 1, 1, false, 16, true, 0};
+  write_bytes(dir / "b.raw", std::string("\x12\x34", 2));
+  EXPECT_EQ(vp::read_slice(dir / "b.raw", big).at<std::uint16_t>(0, 0), 0x1234);
+  big.big_endian = false;
+  EXPECT_EQ(vp::read_slice(dir / "b.raw", big).at<std::uint16_t>(0, 0), 0x3412);
+}
+
+TEST(SliceIo, Errors) {
+  TempDir dir;
+  write_bytes(dir / "empty.png", "");
+  expect_error<vispack::InputError>([&] { vp::read_slice(dir / "empty.png"); }, "empty.png");
+  expect_error<vispack::InputError>([&] { vp::read_slice(dir / "missing.png"); }, "missing.png");
+
+  // A PNG cut in half.
+  vp::write_image(dir / "full.png", make_image(64, 64, CV_8UC3));
+  const std::string bytes = read_bytes(dir / "full.png");
+  write_bytes(dir / "cut.png", bytes.substr(0, bytes.size() / 2));
+  expect_error<vispack::InputError>([&] { vp::read_slice(dir / "cut.png"); }, "cut.png");
+  write_bytes(dir / "junk.png", "this is not an image at all, just text");
+  expect_error<vispack::InputError>([&] { vp::read_slice(dir / "junk.png"); }, "junk.png");
+
+  // Raw of the wrong size.
+  vp::RawLayout layout{4, 4, 3, true, 8, false, 0};
+  write_bytes(dir / "short.raw", std::string(47, '\0'));
+  expect_error<vispack::InputError>([&] { vp::read_slice(dir / "short.raw", layout); },
+                                    "expected 48");
+  // Hostile raw sizes are refused before allocating.
+  vp::RawLayout huge{100000, 10, 1, false, 8, false, 0};
+  write_bytes(dir / "huge.raw", std::string(10, '\0'));
+  expect_error<vispack::InputError>([&] { vp::read_slice(dir / "huge.raw", huge); }, "limit");
+
+  expect_error<vispack::IoError>(
+      [&] { vp::write_image(dir / "x.bmpx", make_image(4, 4, CV_8UC3)); }, "x.bmpx");
+  expect_error<vispack::IoError>(
+      [&] { vp::write_image(dir / "no/such/dir/x.png", make_image(4, 4, CV_8UC3)); }, "x.png");
+  // Nothing half-written is left behind by a failed write.
+  EXPECT_FALSE(std::filesystem::exists(dir / "x.bmpx"));
+}
+
+TEST(SliceIo, HugeHeaderIsRefused) {
+  // A PNG whose IHDR claims 70000 x 70000 pixels (a decompression bomb) is refused by the size
+  // check with a message about the limit, not by running out of memory.
+  TempDir dir;
+  vp::write_image(dir / "small.png", make_image(8, 8, CV_8UC1));
+  std::string bytes = read_bytes(dir / "small.png");
+  // IHDR data starts at byte 16: width (4 bytes BE), height (4 bytes BE). Fix the CRC too.
+  const unsigned w = 70000, h = 70000;
+  for (int i = 0; i < 4; ++i) {
+    bytes[16 + i] = static_cast<char>((w >> (24 - 8 * i)) & 0xff);
+    bytes[20 + i] = static_cast<char>((h >> (24 - 8 * i)) & 0xff);
+  }
+  // CRC-32 over chunk type + data (bytes 12..28 exclusive of length).
+  std::uint32_t crc = 0xffffffffu;
+  for (int i = 12; i < 29; ++i) {
+    crc ^= static_cast<unsigned char>(bytes[i]);
+    for (int k = 0; k < 8; ++k)
+      crc = (crc >> 1) ^ (0xedb88320u & (0u - (crc & 1u)));
+  }
+  crc ^= 0xffffffffu;
+  for (int i = 0; i < 4; ++i)
+    bytes[29 + i] = static_cast<char>((crc >> (24 - 8 * i)) & 0xff);
+  write_bytes(dir / "bomb.png", bytes);
+  expect_error<vispack::InputError>([&] { vp::read_slice(dir / "bomb.png"); }, "bomb.png");
+}
+
+TEST(ListSlices, NumericSortAndPatternMatching) {
+  TempDir dir;
+  for (const char* name : {"rgb_10.png", "rgb_2.png", "rgb_0001.png", "rgb_x.png", "other_3.png",
+                           "rgb_4.png.bak", "rgb_.png"}) {
+    write_bytes(dir / name, "x");
+  }
+  std::filesystem::create_directory(dir / "rgb_5.png");  // a folder is not a slice
+  vp::SliceSource source;
+  source.dir = dir.path();
+  source.pattern = "rgb_{n}.png";
+  const auto files = vp::list_slices(source);
+  ASSERT_EQ(files.size(), 3u);
+  EXPECT_EQ(files[0].number, 1);
+  EXPECT_EQ(files[1].number, 2);
+  EXPECT_EQ(files[2].number, 10);
+  EXPECT_EQ(files[1].path, dir / "rgb_2.png");
+  EXPECT_EQ(files[2].path, dir / "rgb_10.png");
+}
+
+TEST(ListSlices, Errors) {
+  TempDir dir;
+  vp::SliceSource source;
+  source.dir = dir / "nope";
+  source.pattern = "rgb_{n}.png";
+  expect_error<vispack::ConfigError>([&] { vp::list_slices(source); }, dir / "nope");
+  source.dir = dir.path();
+  write_bytes(dir / "ct_1.png", "x");
+  expect_error<vispack::ConfigError>([&] { vp::list_slices(source); }, "rgb_{n}.png");
+  write_bytes(dir / "rgb_7.png", "x");
+  write_bytes(dir / "rgb_007.png", "x");
+  expect_error<vispack::ConfigError>([&] { vp::list_slices(source); }, "rgb_007.png");
+  source.pattern = "rgb_.png";
+  expect_error<vispack::ConfigError>([&] { vp::list_slices(source); }, "{n}");
+}

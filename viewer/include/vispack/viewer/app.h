@@ -1,0 +1,39 @@
+// vispack-view's logic, kept in the library so the executable is a screen of code: option
+// parsing, the headless screenshot path (EGL) and the interactive window (GLFW).
+#pragma once
+
+#include <cstdint>
+#include <string>
+
+#include "vispack/common/cli.h"
+#include "vispack/render/camera.h"
+#include "vispack/render/transfer.h"
+
+namespace vispack::viewer {
+
+struct ViewOptions {
+  std::string file;
+  std::string screenshot;  // empty: interactive window
+  int width = 512, height = 512;
+  render::RenderParams params;
+  render::OrbitParams orbit;   // target is the box centre plus orbit.pan_mm
+  double label_opacity = 0.5;  // alpha of every label in the colour table (per Δ0)
+  int level = -1;              // -1: the finest level that fits (choose_level)
+  std::int64_t max_gpu_mb = 2048;
+  int threads = 0;
+  int max_frames = 0;    // interactive: close after this many frames (0: never; smoke tests)
+  bool timings = false;  // print first-frame, upload and frame times to stderr
+};
+
+// Declares and parses every option (throws UsageError naming a bad value). Calls args.done().
+ViewOptions parse_view_options(Args& args);
+
+// Renders one frame without a display and writes options.screenshot. Returns 0.
+// Throws IoError/FormatError (the file), vispack::Error (no GL context).
+int run_screenshot(const ViewOptions& options);
+
+// Opens a window and runs the interactive viewer until it is closed. Throws vispack::Error
+// when no window can be opened (no display) or the viewer was built without GLFW.
+int run_window(const ViewOptions& options);
+
+}  // namespace vispack::viewer

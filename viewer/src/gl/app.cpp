@@ -1,0 +1,208 @@
+#include "vispack/viewer/app.h"
+
+#include <epoxy/gl.h>
+
+#include <chrono>
+#include <cstdio>
+#include <sstream>
+#include <vector>
+
+#include "vispack/common/error.h"
+#include "vispack/render/volume.h"
+#include "vispack/viewer/context.h"
+#include "vispack/viewer/slice_renderer.h"
+#include "vispack/viewer/volume_textures.h"
+
+namespace vispack::viewer {
+namespace {
+
+std::vector<double> parse_list(const std::string& option, const std::string& text, char sep,
+                               std::size_t count) {
+  std::vector<double> out;
+  std::stringstream in(text);
+  std::string item;
+  while (std::getline(in, item, sep)) {
+    try {
+      std::size_t used = 0;
+      out.push_back(std::stod(item, &used));
+      if (used != item.size()) throw std::invalid_argument(item);
+    } catch (const std::exception&) {
+      throw UsageError(
+          cat(option, ": '", text, "' is not ", count, " numbers separated by '", sep, "'"));
+    }
+  }
+  if (out.size() != count)
+    throw UsageError(
+        cat(option, ": '", text, "' is not ", count, " numbers separated by '", sep, "'"));
+  return out;
+}
+
+double seconds_since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+}  // namespace
+
+ViewOptions parse_view_options(Args& args) {
+  ViewOptions o;
+  args.describe("FILE [--screenshot OUT.png --size WxH] [--mode M] [options]",
+                "Renders a packed volume with view-aligned slices. With --screenshot, renders one "
+                "frame headless (EGL, no X server needed) and exits; otherwise opens a window.");
+  auto shot = args.option("--screenshot", "OUT.png", "render one frame headless to a PNG");
+  std::string size = args.option("--size", "WxH", "frame size in pixels", "512x512");
+  std::string mode = args.option("--mode", "M", "colour|ct|mip|average|iso|labels|mpr", "colour");
+  auto az = args.option_double("--azimuth", "DEG", "orbit azimuth (0: looking along -y)");
+  auto el = args.option_double("--elevation", "DEG", "orbit elevation (+: from the head side)");
+  auto dist = args.option_double("--distance", "MM", "camera distance from the target");
+  auto zoom = args.option_double("--zoom", "F", "zoom factor (divides the fitted distance)");
+  auto fov = args.option_double("--fov", "DEG", "vertical field of view (default 30)");
+  bool ortho = args.flag("--ortho", "orthographic projection");
+  auto pan = args.option("--pan", "X,Y,Z", "move camera and target by this vector (mm)");
+  auto spv = args.option_double("--slices-per-voxel", "S", "slice density (default 2)");
+  auto opacity = args.option_double("--opacity", "A", "opacity scale per voxel (default 1)");
+  std::string from = args.option("--opacity-from", "alpha|ct", "colour mode opacity", "alpha");
+  auto window = args.option("--window", "CENTER:WIDTH", "CT window in HU (default 300:1500)");
+  std::string ramp = args.option("--ramp", "NAME", "colour ramp: grey|bone|hot", "bone");
+  auto iso = args.option_double("--iso", "HU", "isosurface threshold (default 300)");
+  auto highlight = args.option_int("--highlight", "ID", "label to highlight (labels mode)");
+  auto label_opacity = args.option_double("--label-opacity", "A", "label opacity (default 0.5)");
+  bool jitter = args.flag("--jitter", "jitter slice positions per pixel");
+  auto mpr = args.option_double("--mpr-offset", "MM", "mpr plane offset from the target");
+  auto clip = args.option("--clip", "NX,NY,NZ,D", "remove samples with n.x > D");
+  auto bg = args.option("--background", "R,G,B", "background colour in [0,1] (default black)");
+  auto level = args.option_int("--level", "L", "pyramid level (default: finest that fits)");
+  auto gpu = args.option_int("--max-gpu-mb", "MB", "GPU memory budget (default 2048)");
+  auto threads = args.option_int("--threads", "N", "brick decoding threads (default: all)");
+  auto max_frames = args.option_int("--max-frames", "N", "interactive: exit after N frames");
+  o.timings = args.flag("--timings", "print load and frame times to stderr");
+  o.file = args.positional("FILE", "packed volume (.vpk)");
+  args.done();
+
+  if (shot) o.screenshot = *shot;
+  std::size_t x = size.find('x');
+  std::vector<double> wh = parse_list(
+      "--size", x == std::string::npos ? size : size.substr(0, x) + "," + size.substr(x + 1), ',',
+      2);
+  if (!(wh[0] >= 1 && wh[0] <= 16384 && wh[1] >= 1 && wh[1] <= 16384))
+    throw UsageError(cat("--size: '", size, "' must be WxH with 1..16384 pixels each"));
+  o.width = int(wh[0]);
+  o.height = int(wh[1]);
+  auto m = render::mode_from_name(mode);
+  if (!m) throw UsageError(cat("--mode: unknown mode '", mode, "'"));
+  o.params.mode = *m;
+  if (az) o.orbit.azimuth_deg = *az;
+  if (el) o.orbit.elevation_deg = *el;
+  if (dist) o.orbit.distance_mm = *dist;
+  if (zoom) {
+    if (!(*zoom > 0)) throw UsageError("--zoom must be > 0");
+    o.orbit.zoom = *zoom;
+  }
+  if (fov) o.orbit.fov_y_deg = *fov;
+  o.orbit.orthographic = ortho;
+  if (pan) {
+    auto v = parse_list("--pan", *pan, ',', 3);
+    o.orbit.pan_mm = {v[0], v[1], v[2]};
+  }
+  if (spv) {
+    if (!(*spv > 0 && *spv <= 64)) throw UsageError("--slices-per-voxel must be in (0, 64]");
+    o.params.slices_per_voxel = *spv;
+  }
+  if (opacity) {
+    if (!(*opacity >= 0)) throw UsageError("--opacity must be >= 0");
+    o.params.opacity = *opacity;
+  }
+  if (from != "alpha" && from != "ct") throw UsageError("--opacity-from must be alpha or ct");
+  o.params.opacity_source =
+      from == "ct" ? render::OpacitySource::kCt : render::OpacitySource::kAlpha;
+  if (window) {
+    auto v = parse_list("--window", *window, ':', 2);
+    o.params.window_center_hu = v[0];
+    o.params.window_width_hu = v[1];
+  }
+  o.params.ramp = render::make_ramp(ramp);
+  if (iso) o.params.iso_hu = *iso;
+  if (highlight) o.params.highlight_label = int(*highlight);
+  if (label_opacity) o.label_opacity = *label_opacity;
+  o.params.jitter = jitter;
+  if (mpr) o.params.mpr_offset_mm = *mpr;
+  if (clip) {
+    auto v = parse_list("--clip", *clip, ',', 4);
+    o.params.clip = true;
+    o.params.clip_normal = {v[0], v[1], v[2]};
+    o.params.clip_d = v[3];
+  }
+  if (bg) {
+    auto v = parse_list("--background", *bg, ',', 3);
+    o.params.background = {float(v[0]), float(v[1]), float(v[2]), 1.0f};
+  }
+  if (level) o.level = int(*level);
+  if (gpu) {
+    if (*gpu <= 0) throw UsageError("--max-gpu-mb must be > 0");
+    o.max_gpu_mb = *gpu;
+  }
+  if (threads) o.threads = int(*threads);
+  if (max_frames) o.max_frames = int(*max_frames);
+  return o;
+}
+
+int run_screenshot(const ViewOptions& options) {
+  auto t_open = std::chrono::steady_clock::now();
+  std::unique_ptr<render::VolumeSource> source = render::open_packed(options.file);
+  HeadlessContext context;
+  GLint max3d = 0;
+  glGetIntegerv(GL_MAX_3D_TEXTURE_SIZE, &max3d);
+  int levels = source->level_count();
+  int level =
+      options.level >= 0 ? options.level : choose_level(*source, max3d, options.max_gpu_mb << 20);
+  if (level >= levels)
+    throw UsageError(cat("--level ", level, ": ", options.file, " has ", levels, " levels"));
+
+  render::RenderParams params = options.params;
+  params.label_colours = render::make_label_colours(source->labels(), options.label_opacity);
+  render::LevelGeometry g0 = source->level(0);
+  render::OrbitParams orbit = options.orbit;
+  orbit.target = g0.box().centre();
+  params.mpr_target = orbit.target + orbit.pan_mm;
+  render::Camera camera = render::orbit_camera(orbit, g0.box(), options.width, options.height);
+
+  SliceRenderer renderer;
+  VolumeTextures textures;
+  if (options.timings && level != levels - 1) {
+    // Time to first frame: the coarsest level, rendered and read back.
+    textures.upload(*source, levels - 1, options.threads);
+    renderer.render(textures, camera, params);
+    renderer.read_rgba8();
+    std::fprintf(stderr, "first frame (level %d): %.3f s after open\n", levels - 1,
+                 seconds_since(t_open));
+  }
+  UploadStats up = textures.upload(*source, level, options.threads);
+  if (options.timings) {  // warm-up: llvmpipe compiles shaders at the first draw
+    renderer.render(textures, camera, params);
+    renderer.read_rgba8();
+  }
+  auto t_frame = std::chrono::steady_clock::now();
+  FrameInfo info = renderer.render(textures, camera, params);
+  render::Image8 image = renderer.read_rgba8();
+  double frame_s = seconds_since(t_frame);
+  render::write_png(options.screenshot, image);
+  if (options.timings) {
+    render::LevelGeometry g = source->level(level);
+    std::fprintf(stderr,
+                 "%s\nlevel %d (%lldx%lldx%lld): upload %.1f MB in %.3f s (%.1f MB/s, %lld "
+                 "bricks)\nframe %dx%d mode %s: %lld slices, %.3f s\n",
+                 context.description().c_str(), level, (long long)g.dims[0], (long long)g.dims[1],
+                 (long long)g.dims[2], up.bytes / 1e6, up.seconds,
+                 up.seconds > 0 ? up.bytes / 1e6 / up.seconds : 0.0, (long long)up.bricks,
+                 options.width, options.height, render::mode_name(params.mode),
+                 (long long)info.slices, frame_s);
+  }
+  return 0;
+}
+
+#ifndef VISPACK_HAVE_GLFW
+int run_window(const ViewOptions&) {
+  throw Error("this vispack-view was built without GLFW; use --screenshot");
+}
+#endif
+
+}  // namespace vispack::viewer

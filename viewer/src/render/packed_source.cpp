@@ -1,0 +1,76 @@
+// VolumeSource over the memory-mapped format reader (vispack::format::Reader).
+#include <cstring>
+#include <stdexcept>
+
+#include "vispack/common/error.h"
+#include "vispack/format/reader.h"
+#include "vispack/render/volume.h"
+
+namespace vispack::render {
+namespace {
+
+class PackedSource final : public VolumeSource {
+ public:
+  explicit PackedSource(const std::string& path) : reader_(format::Reader::open(path)) {
+    for (Channel c : {Channel::kRgba, Channel::kCt, Channel::kLabels}) {
+      std::optional<int> idx = reader_.find_channel(channel_name(c));
+      if (!idx) continue;
+      format::ChannelType t = reader_.channels()[std::size_t(*idx)].type;
+      bool ok = c == Channel::kRgba ? t == format::ChannelType::kRgba8
+                                    : (c == Channel::kCt ? t == format::ChannelType::kInt16
+                                                         : format::is_label_type(t));
+      if (!ok)
+        throw FormatError(cat(path, ": channel '", channel_name(c), "' has unexpected type ",
+                              format::channel_type_name(t)));
+      index_[int(c)] = *idx;
+      type_[int(c)] = t;
+    }
+  }
+  std::string name() const override { return reader_.path(); }
+  int level_count() const override { return reader_.level_count(); }
+  LevelGeometry level(int level) const override {
+    const format::LevelInfo& l = reader_.level(level);
+    LevelGeometry g;
+    g.dims = l.dims;
+    g.spacing_mm = {l.spacing_mm[0], l.spacing_mm[1], l.spacing_mm[2]};
+    g.origin_mm = {l.origin_mm[0], l.origin_mm[1], l.origin_mm[2]};
+    return g;
+  }
+  bool has_channel(Channel c) const override { return index_[int(c)] >= 0; }
+  std::vector<Label> labels() const override {
+    std::vector<Label> out;
+    for (const format::LabelEntry& e : reader_.label_table())
+      out.push_back({e.id, e.name, e.colour});
+    return out;
+  }
+  int brick_edge() const override { return reader_.brick_edge(); }
+  void read_region(Channel c, int level, const Region& r, void* out) const override {
+    int idx = index_[int(c)];
+    if (idx < 0) throw std::out_of_range(cat(reader_.path(), ": no channel ", channel_name(c)));
+    if (c == Channel::kLabels && type_[int(c)] == format::ChannelType::kUint8) {
+      // Widen uint8 labels in place, back to front (the uint8 data fills the first half).
+      reader_.read_region(idx, level, r.offset[0], r.offset[1], r.offset[2], r.size[0], r.size[1],
+                          r.size[2], out);
+      auto* bytes = static_cast<std::uint8_t*>(out);
+      auto* wide = static_cast<std::uint16_t*>(out);
+      for (std::int64_t i = r.voxels(); i-- > 0;)
+        wide[i] = bytes[i];
+      return;
+    }
+    reader_.read_region(idx, level, r.offset[0], r.offset[1], r.offset[2], r.size[0], r.size[1],
+                        r.size[2], out);
+  }
+
+ private:
+  format::Reader reader_;
+  int index_[kChannelCount] = {-1, -1, -1};
+  format::ChannelType type_[kChannelCount] = {};
+};
+
+}  // namespace
+
+std::unique_ptr<VolumeSource> open_packed(const std::string& path) {
+  return std::make_unique<PackedSource>(path);
+}
+
+}  // namespace vispack::render

@@ -1,0 +1,85 @@
+#include "vispack/render/volume.h"
+
+#include <cstring>
+#include <stdexcept>
+
+#include "vispack/common/error.h"
+
+namespace vispack::render {
+
+const char* channel_name(Channel c) {
+  switch (c) {
+    case Channel::kRgba:
+      return "rgba";
+    case Channel::kCt:
+      return "ct";
+    case Channel::kLabels:
+      return "labels";
+  }
+  return "?";
+}
+
+int channel_bytes(Channel c) {
+  return c == Channel::kRgba ? 4 : 2;
+}
+
+VolumeData load_level(const VolumeSource& source, int level) {
+  VolumeData data;
+  data.geometry = source.level(level);
+  data.label_table = source.labels();
+  Region all;
+  all.size = data.geometry.dims;
+  std::size_t n = std::size_t(data.geometry.voxels());
+  if (source.has_channel(Channel::kRgba)) {
+    data.rgba.resize(n * 4);
+    source.read_region(Channel::kRgba, level, all, data.rgba.data());
+  }
+  if (source.has_channel(Channel::kCt)) {
+    data.ct.resize(n);
+    source.read_region(Channel::kCt, level, all, data.ct.data());
+  }
+  if (source.has_channel(Channel::kLabels)) {
+    data.labels.resize(n);
+    source.read_region(Channel::kLabels, level, all, data.labels.data());
+  }
+  return data;
+}
+
+MemorySource::MemorySource(std::shared_ptr<const VolumeData> data, int brick_edge)
+    : data_(std::move(data)), brick_edge_(brick_edge > 0 ? brick_edge : 32) {
+  if (!data_) throw std::invalid_argument("MemorySource: null volume");
+  std::size_t n = std::size_t(data_->geometry.voxels());
+  if ((!data_->rgba.empty() && data_->rgba.size() != 4 * n) ||
+      (!data_->ct.empty() && data_->ct.size() != n) ||
+      (!data_->labels.empty() && data_->labels.size() != n))
+    throw std::invalid_argument("MemorySource: channel sizes do not match the dims");
+}
+
+LevelGeometry MemorySource::level(int level) const {
+  if (level != 0) throw std::out_of_range(cat("memory volume: no level ", level));
+  return data_->geometry;
+}
+
+void MemorySource::read_region(Channel c, int level, const Region& r, void* out) const {
+  const LevelGeometry& g = data_->geometry;
+  if (level != 0) throw std::out_of_range(cat("memory volume: no level ", level));
+  if (!data_->has(c)) throw std::out_of_range(cat("memory volume: no channel ", channel_name(c)));
+  for (int a = 0; a < 3; ++a)
+    if (r.offset[a] < 0 || r.size[a] < 0 || r.offset[a] + r.size[a] > g.dims[a])
+      throw std::out_of_range("memory volume: region outside the level");
+  const std::uint8_t* src =
+      c == Channel::kRgba
+          ? data_->rgba.data()
+          : (c == Channel::kCt ? reinterpret_cast<const std::uint8_t*>(data_->ct.data())
+                               : reinterpret_cast<const std::uint8_t*>(data_->labels.data()));
+  std::size_t bpv = std::size_t(channel_bytes(c));
+  auto* dst = static_cast<std::uint8_t*>(out);
+  for (std::int64_t z = 0; z < r.size[2]; ++z)
+    for (std::int64_t y = 0; y < r.size[1]; ++y) {
+      std::int64_t s = data_->index(r.offset[0], r.offset[1] + y, r.offset[2] + z);
+      std::memcpy(dst + bpv * std::size_t((z * r.size[1] + y) * r.size[0]), src + bpv * s,
+                  bpv * std::size_t(r.size[0]));
+    }
+}
+
+}  // namespace vispack::render
