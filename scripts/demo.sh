@@ -35,15 +35,18 @@ step "Rendering pictures (headless)"
 render() {  # render NAME MODE [extra args]
   local name=$1 mode=$2; shift 2
   if [[ -n "${DISPLAY:-}" ]]; then
-    "$bin/vispack-view" "$packed" --mode "$mode" --screenshot "$out/$name.png" --size 800x600 "$@"
+    "$bin/vispack-view" "$packed" --mode "$mode" --screenshot "$out/$name.png" --size 640x480 "$@"
   else
-    "$bin/vispack-view" "$packed" --mode "$mode" --screenshot "$out/$name.png" --size 800x600 "$@" ||
-      xvfb-run -a "$bin/vispack-view" "$packed" --mode "$mode" --screenshot "$out/$name.png" --size 800x600 "$@"
+    "$bin/vispack-view" "$packed" --mode "$mode" --screenshot "$out/$name.png" --size 640x480 "$@" ||
+      xvfb-run -a "$bin/vispack-view" "$packed" --mode "$mode" --screenshot "$out/$name.png" --size 640x480 "$@"
   fi
 }
-render render-colour colour
-render render-ct ct
-render render-labels labels
+# An oblique view with the front quarter clipped away, so the cut face shows the inside.
+view=(--azimuth 35 --elevation 35)
+render render-colour colour "${view[@]}" --clip 0,-1,0,0
+render render-ct ct "${view[@]}"
+render render-labels labels "${view[@]}" --clip 0,-1,0,0
+render render-iso iso "${view[@]}"
 
 step "Done. Outputs:"
 cat <<TXT
@@ -54,6 +57,6 @@ cat <<TXT
   stage reports            $work/*/report.json
   packed volume            $packed   (inspect: build/bin/vispack-info $packed)
   OpenVDB export           $vdb
-  rendered pictures        $out/render-colour.png $out/render-ct.png $out/render-labels.png
+  rendered pictures        $out/render-{colour,ct,labels,iso}.png
   view it yourself         build/bin/vispack-view $packed
 TXT

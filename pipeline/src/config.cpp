@@ -1,4 +1,4 @@
-// load_config: every key checked, defaults filled, paths resolved (docs/CONFIG.md).
+// load_config: every key checked, defaults filled, paths resolved (README.md "The config").
 #include "vispack/pipeline/config.h"
 
 #include <algorithm>

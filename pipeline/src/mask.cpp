@@ -13,6 +13,9 @@
 namespace vispack::pipeline {
 namespace {
 
+// Depth (output pixels) of the edge band in which the gel refinement may remove pixels.
+constexpr double kGelBandPx = 12.0;
+
 cv::Mat disc(int radius) {
   return cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * radius + 1, 2 * radius + 1));
 }
@@ -141,18 +144,65 @@ cv::Mat colour_body_mask(const cv::Mat& rgb, const cv::Vec3f& gel, double distan
 }
 
 cv::Mat remove_edge_gel(const cv::Mat& mask, const cv::Mat& rgb, const cv::Vec3f& gel,
-                        double distance) {
+                        double distance, const cv::Mat& band, cv::Rect* removed) {
   check_rgb(rgb, "remove_edge_gel");
-  if (mask.size() != rgb.size()) throw Error("remove_edge_gel: mask and slice differ in size");
-  // Candidate = outside ∪ (inside ∧ gel-coloured); flood it from a frame of outside pixels.
-  cv::Mat gelish = non_gel(rgb, gel, distance) == 0;
-  cv::Mat candidate = (mask == 0) | gelish;
-  cv::Mat padded;
-  cv::copyMakeBorder(candidate, padded, 1, 1, 1, 1, cv::BORDER_CONSTANT, cv::Scalar(255));
-  cv::floodFill(padded, cv::Point(0, 0), cv::Scalar(128), nullptr, cv::Scalar(0), cv::Scalar(0), 4);
-  cv::Mat reached = padded(cv::Rect(1, 1, mask.cols, mask.rows)) == 128;
+  if (mask.size() != rgb.size() || mask.type() != CV_8UC1)
+    throw Error("remove_edge_gel: mask and slice differ in size (or the mask is not 8-bit)");
+  if (!band.empty() && (band.size() != mask.size() || band.type() != CV_8UC1))
+    throw Error("remove_edge_gel: band and mask differ in size");
+  if (removed) *removed = cv::Rect();
+  // The squared colour distance to the gel of every pixel that may be removed (mask ∧ band).
+  const float g0 = gel[0], g1 = gel[1], g2 = gel[2];
+  const float limit = float(distance * distance);
+  std::vector<std::pair<int, float>> examined;  // (offset y·cols + x, squared distance)
+  std::vector<float> tissue;                     // squared distances of clearly non-gel pixels
+  for (int y = 0; y < mask.rows; ++y) {
+    const std::uint8_t* m = mask.ptr<std::uint8_t>(y);
+    const std::uint8_t* b = band.empty() ? m : band.ptr<std::uint8_t>(y);
+    const cv::Vec3b* c = rgb.ptr<cv::Vec3b>(y);
+    for (int x = 0; x < mask.cols; ++x) {
+      if (!m[x] || !b[x]) continue;
+      const float a = c[x][0] - g0, bb = c[x][1] - g1, cc = c[x][2] - g2;
+      const float d2 = a * a + bb * bb + cc * cc;
+      examined.emplace_back(y * mask.cols + x, d2);
+      if (d2 > limit) tissue.push_back(d2);
+    }
+  }
+  // Gel-coloured: closer than `distance`, or than half the median tissue distance (an edge
+  // pixel less than half covered by tissue; tissue showing through the translucent gel next to
+  // the body would otherwise count as body).
+  float level = limit;
+  if (!tissue.empty()) {
+    auto mid = tissue.begin() + tissue.size() / 2;
+    std::nth_element(tissue.begin(), mid, tissue.end());
+    level = std::max(limit, 0.25f * *mid);  // (half the distance)²
+  }
+  // Gel-coloured examined pixels (255); those connected (4-neighbours) to the outside of the
+  // mask are flooded to 128 from seeds next to the outside or the image border.
+  cv::Mat gelish = cv::Mat::zeros(mask.size(), CV_8UC1);
+  std::uint8_t* gp = gelish.data;
+  for (const auto& e : examined)
+    if (e.second < level) gp[e.first] = 255;
+  const int w = mask.cols, h = mask.rows;
+  auto outside = [&](int x, int y) {
+    return x < 0 || y < 0 || x >= w || y >= h || mask.at<std::uint8_t>(y, x) == 0;
+  };
+  for (const auto& e : examined) {
+    if (gp[e.first] != 255) continue;
+    const int x = e.first % w, y = e.first / w;
+    if (outside(x - 1, y) || outside(x + 1, y) || outside(x, y - 1) || outside(x, y + 1))
+      cv::floodFill(gelish, cv::Point(x, y), cv::Scalar(128), nullptr, cv::Scalar(0),
+                    cv::Scalar(0), 4);
+  }
   cv::Mat out = mask.clone();
-  out.setTo(0, reached);
+  int x0 = w, y0 = h, x1 = -1, y1 = -1;
+  for (const auto& e : examined) {
+    if (gp[e.first] != 128) continue;
+    out.data[e.first] = 0;
+    const int x = e.first % w, y = e.first / w;
+    x0 = std::min(x0, x), x1 = std::max(x1, x), y0 = std::min(y0, y), y1 = std::max(y1, y);
+  }
+  if (removed && x1 >= 0) *removed = cv::Rect(x0, y0, x1 - x0 + 1, y1 - y0 + 1);
   return out;
 }
 
@@ -205,14 +255,59 @@ MaskSlice compute_mask(const cv::Mat& rgb, const cv::Mat* ct_hu, const cv::Matx2
     const cv::Rect roi = mapped_bounds(ct_mask, out_to_ct, size, margin);
     if (!roi.empty()) {
       const cv::Matx23d shift{1, 0, double(roi.x), 0, 1, double(roi.y)};
-      cv::Mat m = resample_mask(ct_mask, compose_affine(out_to_ct, shift), roi.size());
-      const cv::Mat rgb_roi = rgb(roi);
-      if (options.refine_gel) m = remove_edge_gel(m, rgb_roi, result.gel, options.gel_distance);
-      m = fill_holes(largest_component(open_disc(m, options.opening_px)));
+      const cv::Matx23d roi_to_ct = compose_affine(out_to_ct, shift);
+      // Output pixels per CT pixel.
+      const double scale =
+          1.0 / std::sqrt(std::abs(out_to_ct(0, 0) * out_to_ct(1, 1) -
+                                   out_to_ct(0, 1) * out_to_ct(1, 0)));
+      cv::Mat m;
+      if (options.refine_gel) {
+        // The CT mask is already clean (one component, no holes). Its edge band (kGelBandPx
+        // output pixels deep, at least one CT pixel) is carried along in the same resampling:
+        // 255 = core, 128 = band, 0 = outside; linear, then thresholds half way.
+        const int band_ct = std::max(1, int(std::ceil(kGelBandPx / scale)));
+        cv::Mat core;
+        cv::erode(ct_mask, core, disc(band_ct), cv::Point(-1, -1), 1, cv::BORDER_CONSTANT,
+                  cv::Scalar(0));
+        cv::Mat levels = ct_mask / 2;
+        levels.setTo(255, core);
+        cv::Mat warped;
+        cv::warpAffine(levels, warped, cv::Mat(roi_to_ct), roi.size(),
+                       cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_CONSTANT,
+                       cv::Scalar(0));
+        cv::Mat carried(roi.size(), CV_8UC1), band(roi.size(), CV_8UC1);
+        for (int y = 0; y < roi.height; ++y) {
+          const std::uint8_t* in = warped.ptr<std::uint8_t>(y);
+          std::uint8_t* mo = carried.ptr<std::uint8_t>(y);
+          std::uint8_t* bo = band.ptr<std::uint8_t>(y);
+          for (int x = 0; x < roi.width; ++x) {
+            mo[x] = in[x] >= 64 ? 255 : 0;
+            bo[x] = (in[x] >= 64 && in[x] < 192) ? 255 : 0;
+          }
+        }
+        cv::Rect removed;
+        m = remove_edge_gel(carried, rgb(roi), result.gel, options.gel_distance, band, &removed);
+        // Removing gel connected to the outside cannot open holes; the opening smooths the
+        // new edge where something was removed (and only there).
+        if (!removed.empty() && options.opening_px > 0) {
+          const int g = options.opening_px + 1;
+          const cv::Rect box =
+              cv::Rect(removed.x - g, removed.y - g, removed.width + 2 * g, removed.height + 2 * g) &
+              cv::Rect(0, 0, roi.width, roi.height);
+          cv::Mat opened;
+          cv::morphologyEx(m(box), opened, cv::MORPH_OPEN, disc(options.opening_px),
+                           cv::Point(-1, -1), 1, cv::BORDER_REPLICATE);
+          opened.copyTo(m(box));
+        }
+      } else {
+        m = resample_mask(ct_mask, roi_to_ct, roi.size());
+        m = fill_holes(largest_component(open_disc(m, options.opening_px)));
+      }
+      result.coverage = double(cv::countNonZero(m)) / double(size.area());
       m.copyTo(result.mask(roi));
     }
   }
-  result.coverage = double(cv::countNonZero(result.mask)) / double(size.area());
+  if (!ct_hu) result.coverage = double(cv::countNonZero(result.mask)) / double(size.area());
   return result;
 }
 

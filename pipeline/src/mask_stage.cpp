@@ -96,7 +96,10 @@ StageResult run_mask_stage(const Config& config, const StageOptions& options) {
       ++colour_only;
     }
     const auto t0 = std::chrono::steady_clock::now();
-    MaskSlice m = compute_mask(rgb, has_ct ? &ct_hu : nullptr, out_to_ct, config.mask);
+    // A black (lost) colour slice has no colour to refine with: its mask is the CT's alone.
+    MaskOptions mask_options = config.mask;
+    if (st.slices[std::size_t(k)].black) mask_options.refine_gel = false;
+    MaskSlice m = compute_mask(rgb, has_ct ? &ct_hu : nullptr, out_to_ct, mask_options);
     compute_ns +=
         std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - t0)
             .count();

@@ -82,7 +82,8 @@ Plan make_plan(const PhantomOptions& options) {
   if (plan.defects && n < 6) {
     throw UsageError(cat("black/duplicate slices (--defects) need at least 6 slices, got ", n));
   }
-  const double volume_bytes = double(p.width) * p.height * n * 8.0;
+  // Bytes per voxel of the truth volumes: rgb 3 + ct 2 + mask 1 + labels 2 + seg_labels 2.
+  const double volume_bytes = double(p.width) * p.height * n * 10.0;
   if (volume_bytes > 12e9) {
     throw UsageError(cat("--slices ", n, ": the truth volumes would need ",
                          std::llround(volume_bytes / 1e9), " GB of memory; use fewer slices"));
@@ -231,7 +232,7 @@ PhantomSummary make_phantom(const std::string& out_dir, const PhantomOptions& op
   RawLayout raw;
   raw.width = W, raw.height = H, raw.channels = 3, raw.planar = true, raw.bits = 8;
 
-  NrrdVolume truth_rgb, truth_ct, truth_mask, truth_labels;
+  NrrdVolume truth_rgb, truth_ct, truth_mask, truth_labels, truth_seg_labels;
   const std::array<double, 3> spacing{p.pixel_mm, p.pixel_mm, p.slice_mm};
   auto init = [&](NrrdVolume& v, NrrdType type, int components) {
     v.type = type;
@@ -244,6 +245,7 @@ PhantomSummary make_phantom(const std::string& out_dir, const PhantomOptions& op
   init(truth_ct, NrrdType::kInt16, 1);
   init(truth_mask, NrrdType::kUint8, 1);
   init(truth_labels, NrrdType::kUint16, 1);
+  init(truth_seg_labels, NrrdType::kUint16, 1);
 
   const double cx = (W - 1) * 0.5, cy = (H - 1) * 0.5, cct = (C - 1) * 0.5;
   Progress progress("vispack-phantom", N, "slices", options.quiet);
@@ -274,6 +276,8 @@ PhantomSummary make_phantom(const std::string& out_dir, const PhantomOptions& op
     // q = c + R(−θ)(p − c − d) (the inverse of p = c + R(θ)(q − c) + d).
     cv::Mat rgb(H, W, CV_8UC3, cv::Scalar::all(0));
     cv::Mat seg(H, W, CV_8UC3, cv::Scalar::all(0));
+    // The IDs the seg slice shows, pixel for pixel on its own (drifted) grid; 0 on a black slice.
+    auto* t_seg = truth_seg_labels.as<std::uint16_t>() + plane * k;
     if (!st.black) {
       const SliceParams& src = st.source == k ? params : model.slice(st.source);
       const double th = st.rot * kPi / 180.0, cs = std::cos(th), sn = std::sin(th);
@@ -290,6 +294,7 @@ PhantomSummary make_phantom(const std::string& out_dir, const PhantomOptions& op
           for (int c = 0; c < 3; ++c) {
             row[x * 3 + c] = to_u8(sample.rgb[c] * st.gain + kNoiseSigma * gauss[c]);
           }
+          t_seg[std::size_t(y) * W + x] = sample.label;
           const auto& colour = label_info(sample.label).palette;
           for (int c = 0; c < 3; ++c)
             srow[x * 3 + c] = static_cast<std::uint8_t>(colour[c]);
@@ -333,6 +338,7 @@ PhantomSummary make_phantom(const std::string& out_dir, const PhantomOptions& op
   write_nrrd(truth_dir + "/ct.nrrd", truth_ct);
   write_nrrd(truth_dir + "/mask.nrrd", truth_mask);
   write_nrrd(truth_dir + "/labels.nrrd", truth_labels);
+  write_nrrd(truth_dir + "/seg_labels.nrrd", truth_seg_labels);
 
   // transforms.json (docs/ARCHITECTURE.md "Slice transforms") plus the phantom's own extras:
   // per-slice "gain", and top-level noise levels, preset and seed.

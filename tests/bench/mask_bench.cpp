@@ -1,15 +1,22 @@
 // Mask throughput at the Visible Human size (2048×1216): the CT mask carried onto the colour grid
 // with gel refinement (compute_mask) against the plain colour-threshold baseline (distance to the
 // gel colour + opening), on 1 and 2 threads, with the IoU against the synthetic truth.
-//   build/bin/mask_bench [--slices N]
+//   build/bin/mask_bench [--slices N] [--json OUT]
+// --json also writes the rows (median of --reps R runs, default 1) for scripts/bench.sh, with a
+// third method (CT mask without the gel refinement) for the speed/accuracy curve.
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <string>
 #include <vector>
 
 #include <opencv2/core/utility.hpp>
+#include <nlohmann/json.hpp>
 #include <opencv2/imgproc.hpp>
+
+#include "vispack/common/atomic_file.h"
 
 #include "vispack/common/parallel.h"
 #include "vispack/pipeline/mask.h"
@@ -18,9 +25,14 @@
 namespace vp = vispack::pipeline;
 
 int main(int argc, char** argv) {
-  int slices = 16;
-  for (int i = 1; i + 1 < argc; ++i)
+  int slices = 16, reps = 1;
+  std::string json_out;
+  for (int i = 1; i + 1 < argc; ++i) {
     if (!std::strcmp(argv[i], "--slices")) slices = std::max(1, std::atoi(argv[i + 1]));
+    if (!std::strcmp(argv[i], "--reps")) reps = std::max(1, std::atoi(argv[i + 1]));
+    if (!std::strcmp(argv[i], "--json")) json_out = argv[i + 1];
+  }
+  nlohmann::json rows = nlohmann::json::array();
   const cv::Size size(2048, 1216);
   const cv::Scalar gel(40, 70, 160);
   // Truth: an ellipse body with a gel notch; translucent gel tint near the edge; two green tubes.
@@ -46,28 +58,49 @@ int main(int argc, char** argv) {
   std::printf("| threads | method | ms/slice | IoU |\n|---|---|---|---|\n");
   for (int threads : {1, 2}) {
     cv::setNumThreads(1);
-    for (int method = 0; method < 2; ++method) {
+    for (int method = 0; method < (json_out.empty() ? 2 : 3); ++method) {
       std::vector<cv::Mat> out(static_cast<std::size_t>(slices));
-      const auto t0 = std::chrono::steady_clock::now();
-      vispack::parallel_for(slices, threads, [&](std::int64_t i) {
-        if (method == 0) {
-          // Baseline: colour threshold + opening (DESIGN.md section 7 anchor).
-          out[std::size_t(i)] = vp::open_disc(
-              vp::non_gel(rgb, cv::Vec3f(40, 70, 160), options.gel_distance), options.opening_px);
-        } else {
-          out[std::size_t(i)] = vp::compute_mask(rgb, &ct, out_to_ct, options).mask;
-        }
-      });
-      const double seconds =
-          std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      vp::MaskOptions mo = options;
+      mo.refine_gel = method != 2;
+      std::vector<double> times;
+      for (int r = 0; r < reps; ++r) {
+        const auto t0 = std::chrono::steady_clock::now();
+        vispack::parallel_for(slices, threads, [&](std::int64_t i) {
+          if (method == 0) {
+            // Baseline: colour threshold + opening (DESIGN.md section 7 anchor).
+            out[std::size_t(i)] = vp::open_disc(
+                vp::non_gel(rgb, cv::Vec3f(40, 70, 160), options.gel_distance), options.opening_px);
+          } else {
+            out[std::size_t(i)] = vp::compute_mask(rgb, &ct, out_to_ct, mo).mask;
+          }
+        });
+        times.push_back(
+            std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+      }
+      std::sort(times.begin(), times.end());
+      const double seconds = times[times.size() / 2];
       const cv::Mat& m = out[0];
       const double iou = double(cv::countNonZero(m & truth)) / cv::countNonZero(m | truth);
-      std::printf(
-          "| %d | %s | %.1f | %.4f |\n", threads,
-          method == 0 ? "colour threshold + opening (baseline)" : "CT mask + gel refinement",
-          1000.0 * seconds / slices * threads, iou);
+      const char* name = method == 0   ? "colour threshold + opening (baseline)"
+                         : method == 1 ? "CT mask + gel refinement"
+                                       : "CT mask, no gel refinement";
+      std::printf("| %d | %s | %.1f | %.4f |\n", threads, name,
+                  1000.0 * seconds / slices * threads, iou);
+      rows.push_back({{"threads", threads},
+                      {"method", name},
+                      {"baseline", method == 0},
+                      {"ms_per_slice_per_thread", 1000.0 * seconds / slices * threads},
+                      {"ms_per_slice_wall", 1000.0 * seconds / slices},
+                      {"iou", iou}});
     }
   }
   std::printf("(ms/slice is per thread: wall time × threads / slices)\n");
+  if (!json_out.empty())
+    vispack::write_file_atomic(json_out, nlohmann::json{{"width", size.width},
+                                                        {"height", size.height},
+                                                        {"slices", slices},
+                                                        {"reps", reps},
+                                                        {"rows", rows}}
+                                             .dump(1));
   return 0;
 }

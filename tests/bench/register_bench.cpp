@@ -2,16 +2,29 @@
 // preparation + phase correlation + ECC at ecc_scale) on 1 and 2 threads, with the error
 // against a known synthetic motion. Prints a table (docs/BENCHMARKS.md "## Pipeline").
 //   build/bin/register_bench [--slices N]
+// Phantom mode (scripts/bench.sh): registers consecutive slice pairs of a vispack-phantom folder
+// with every method and ecc_scale offered, one thread, and writes the estimated and true pair
+// matrices as JSON (errors are computed by the caller, the same way for every peer); --dump
+// also writes each pair's grey slices as MetaImage (.mhd + .raw) for elastix.
+//   build/bin/register_bench --phantom DIR [--pairs N] [--reps R] --json OUT [--dump DIR]
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <fstream>
 #include <random>
+#include <string>
 #include <vector>
 
+#include <nlohmann/json.hpp>
 #include <opencv2/core/utility.hpp>
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+
+#include "vispack/common/atomic_file.h"
+#include "vispack/common/error.h"
 
 #include "vispack/common/parallel.h"
 #include "vispack/pipeline/register.h"
@@ -44,9 +57,137 @@ cv::Mat synthetic_slice(cv::Size size) {
   return out;
 }
 
+nlohmann::json matrix_json(const cv::Matx23d& m) {
+  return {{m(0, 0), m(0, 1), m(0, 2)}, {m(1, 0), m(1, 1), m(1, 2)}};
+}
+
+// Writes a grey CV_8U image as MetaImage (header .mhd + raw .raw beside it), spacing 1, origin 0,
+// so that elastix's physical coordinates are OpenCV's pixel coordinates.
+void write_mhd(const std::string& stem, const cv::Mat& grey) {
+  const std::string raw_name = stem.substr(stem.find_last_of('/') + 1) + ".raw";
+  vispack::write_file_atomic(stem + ".raw", grey.data, grey.total());
+  vispack::write_file_atomic(
+      stem + ".mhd", "ObjectType = Image\nNDims = 2\nBinaryData = True\nBinaryDataByteOrderMSB = "
+                     "False\nElementSpacing = 1 1\nOffset = 0 0\nDimSize = " +
+                         std::to_string(grey.cols) + " " + std::to_string(grey.rows) +
+                         "\nElementType = MET_UCHAR\nElementDataFile = " + raw_name + "\n");
+}
+
+// Phantom mode: see the top of the file.
+int run_phantom(const std::string& dir, int max_pairs, int reps, const std::string& json_out,
+                const std::string& dump) {
+  std::ifstream in(dir + "/truth/transforms.json");
+  if (!in) throw vispack::IoError(dir + "/truth/transforms.json: cannot open");
+  const nlohmann::json truth = nlohmann::json::parse(in);
+  const auto& slices = truth.at("slices");
+  auto usable = [&](std::size_t k) {
+    const auto& s = slices[k];
+    return !s.at("black").get<bool>() && s.at("duplicate_of").is_null() && !s.at("jump").get<bool>();
+  };
+  auto load = [&](std::size_t k) {
+    const std::string path = dir + "/rgb/" + slices[k].at("file").get<std::string>();
+    cv::Mat m = cv::imread(path, cv::IMREAD_COLOR);
+    if (m.empty()) throw vispack::IoError(path + ": cannot read");
+    cv::cvtColor(m, m, cv::COLOR_BGR2RGB);  // the pipeline's slices are RGB
+    return m;
+  };
+  auto rigid = [&](std::size_t k) {
+    const auto& s = slices[k];
+    return vp::Rigid{s.at("rotation_deg").get<double>(), s.at("dx_px").get<double>(),
+                     s.at("dy_px").get<double>()};
+  };
+  // Consecutive usable pairs (k-1, k), neither end black, duplicated or a jump.
+  std::vector<std::pair<std::size_t, std::size_t>> pairs;
+  for (std::size_t k = 1; k < slices.size() && int(pairs.size()) < max_pairs; ++k)
+    if (usable(k) && usable(k - 1)) pairs.emplace_back(k - 1, k);
+  if (pairs.empty()) throw vispack::InputError(dir + ": no usable consecutive slice pair");
+  std::vector<cv::Mat> from, to;
+  nlohmann::json out;
+  out["phantom"] = dir;
+  nlohmann::json jp = nlohmann::json::array();
+  for (std::size_t i = 0; i < pairs.size(); ++i) {
+    from.push_back(load(pairs[i].first));
+    to.push_back(load(pairs[i].second));
+    const cv::Point2d c = vp::image_centre(from.back().size());
+    // Truth: T_k = relative ∘ T_j, so relative = T_k ∘ T_j^-1 (observed j -> observed k).
+    const cv::Matx23d rel = vp::compose_affine(vp::rigid_matrix(rigid(pairs[i].second), c),
+                                               vp::invert_affine(vp::rigid_matrix(rigid(pairs[i].first), c)));
+    jp.push_back({{"from", pairs[i].first}, {"to", pairs[i].second}, {"truth", matrix_json(rel)}});
+    if (!dump.empty()) {
+      cv::Mat g;
+      cv::cvtColor(from.back(), g, cv::COLOR_RGB2GRAY);
+      write_mhd(dump + "/pair" + std::to_string(i) + "_fixed", g);
+      cv::cvtColor(to.back(), g, cv::COLOR_RGB2GRAY);
+      write_mhd(dump + "/pair" + std::to_string(i) + "_moving", g);
+    }
+  }
+  out["width"] = from[0].cols;
+  out["height"] = from[0].rows;
+  out["pairs"] = jp;
+  nlohmann::json results = nlohmann::json::array();
+  struct Setting {
+    const char* method;
+    double ecc_scale;
+  };
+  cv::setNumThreads(1);
+  for (Setting st : {Setting{"phase", 0.5}, Setting{"phase+ecc", 0.125}, Setting{"phase+ecc", 0.25},
+                     Setting{"phase+ecc", 0.5}, Setting{"phase+ecc", 1.0}}) {
+    vp::RegisterOptions options;
+    options.method = st.method;
+    options.ecc_scale = st.ecc_scale;
+    nlohmann::json mats = nlohmann::json::array();
+    std::vector<double> times;
+    for (int r = 0; r < reps; ++r) {
+      // Per pair: both frames prepared and the pair estimated (elastix also reads both images).
+      const auto t0 = std::chrono::steady_clock::now();
+      std::vector<vp::PairEstimate> est;
+      for (std::size_t i = 0; i < pairs.size(); ++i)
+        est.push_back(vp::estimate_pair(vp::prepare_frame(from[i], options),
+                                        vp::prepare_frame(to[i], options), options));
+      times.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() /
+                      double(pairs.size()));
+      if (r == 0)
+        for (std::size_t i = 0; i < est.size(); ++i)
+          mats.push_back(matrix_json(vp::rigid_matrix(est[i].relative, vp::image_centre(from[i].size()))));
+    }
+    std::sort(times.begin(), times.end());
+    results.push_back({{"method", st.method},
+                       {"ecc_scale", std::string(st.method) == "phase" ? 0.0 : st.ecc_scale},
+                       {"seconds_per_pair", times[times.size() / 2]},
+                       {"times", times},
+                       {"estimates", mats}});
+    std::fprintf(stderr, "register_bench: %s ecc_scale %.3g: %.1f ms/pair\n", st.method,
+                 st.ecc_scale, 1e3 * times[times.size() / 2]);
+  }
+  out["results"] = results;
+  vispack::write_file_atomic(json_out, out.dump(1));
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
+  std::string phantom, json_out, dump;
+  int max_pairs = 4, reps = 3;
+  for (int i = 1; i + 1 < argc; ++i) {
+    if (!std::strcmp(argv[i], "--phantom")) phantom = argv[i + 1];
+    if (!std::strcmp(argv[i], "--json")) json_out = argv[i + 1];
+    if (!std::strcmp(argv[i], "--dump")) dump = argv[i + 1];
+    if (!std::strcmp(argv[i], "--pairs")) max_pairs = std::max(1, std::atoi(argv[i + 1]));
+    if (!std::strcmp(argv[i], "--reps")) reps = std::max(1, std::atoi(argv[i + 1]));
+  }
+  if (!phantom.empty()) {
+    if (json_out.empty()) {
+      std::fprintf(stderr, "register_bench: --phantom needs --json OUT\n");
+      return 2;
+    }
+    try {
+      return run_phantom(phantom, max_pairs, reps, json_out, dump);
+    } catch (const std::exception& e) {
+      std::fprintf(stderr, "register_bench: %s\n", e.what());
+      return 1;
+    }
+  }
   int pairs = 8;
   for (int i = 1; i + 1 < argc; ++i)
     if (!std::strcmp(argv[i], "--slices")) pairs = std::max(2, std::atoi(argv[i + 1]));

@@ -18,6 +18,7 @@
 #include "vispack/pipeline/phantom.h"
 #include "vispack/pipeline/register.h"
 #include "vispack/pipeline/slice_io.h"
+#include "vispack/pipeline/stage.h"
 
 using namespace vispack;
 using namespace vispack::pipeline;
@@ -344,51 +345,175 @@ TEST(LabelsStage, PngSegWithTrueTransformsMatchesTruth) {
   EXPECT_EQ(again.skipped, 23);
 }
 
-// JPEG segmentation (quality 90, chroma subsampled): colours blur at boundaries. Measured on the
-// `small` preset (8 slices; the tiny preset's 1-3 px structures do not survive JPEG at all), with
-// the true transforms: body voxels (truth/mask.nrrd) get the same label as from the PNG
-// segmentation of the same phantom. Issue 4's bar is 99.5 %; measured 99.55 % of labelled pixels
-// over the whole 64-slice small phantom (seed 3), but 98.9 % on these 8 slices (seed 4), whose
-// body is smaller and has proportionally more boundary: asserted >= 98.5 % here. The JPEG
-// result's agreement with truth in the body must be within 1 point of the PNG result's.
-TEST(LabelsStage, JpegSegWithinTolerance) {
-  auto run_one = [](const std::string& dir, bool jpeg) {
+// ---- Against the phantom's truth on the `small` preset (256x192x64, seed 3) ----
+//
+// Two phantoms generated once for the suite (about a second each): one with PNG segmentation,
+// one with JPEG (quality 90) segmentation of the same anatomy and drift. truth/seg_labels.nrrd
+// holds the ID of every seg pixel as drawn (on the drifted grid), so the colour -> ID mapping is
+// checked on its own, before any resampling.
+namespace {
+struct SmallPhantom {
+  TempDir dir{"vispack-labels-truth"};
+  Config config;
+  NrrdVolume seg_labels, labels, mask;
+  StackTransforms transforms;
+  int nx = 0, ny = 0, nz = 0;
+
+  explicit SmallPhantom(bool jpeg) {
     PhantomOptions po;
     po.preset = "small";
-    po.slices = 8;
-    po.seed = 4;
+    po.seed = 3;
     po.quiet = true;
     po.seg_jpeg = jpeg;
-    make_phantom(dir, po);
-    Config config = load_config(dir + "/config.json");
+    make_phantom(dir.path(), po);
+    config = load_config(dir / "config.json");
+    seg_labels = read_truth(dir.path(), "seg_labels.nrrd");
+    labels = read_truth(dir.path(), "labels.nrrd");
+    mask = read_truth(dir.path(), "mask.nrrd");
+    transforms = read_transforms(dir / "truth/transforms.json");
+    nx = int(labels.dims[0]), ny = int(labels.dims[1]), nz = int(labels.dims[2]);
+  }
+  // Slice k of a uint16 truth volume (a view into the volume).
+  cv::Mat slice16(NrrdVolume& v, int k) const {
+    return cv::Mat(ny, nx, CV_16UC1, v.as<std::uint16_t>() + std::size_t(nx) * ny * k);
+  }
+  // The seg file of slice k (the phantom numbers its slices 0..N-1).
+  std::string seg_file(int k) const { return list_slices(*config.seg).at(std::size_t(k)).path; }
+  // The labels stage with the TRUE transforms (registration error plays no part).
+  void run_stage_with_true_transforms() {
     make_directories(config.work_dir + "/register");
-    fs::copy_file(dir + "/truth/transforms.json", transforms_path(config));
+    fs::copy_file(dir / "truth/transforms.json", transforms_path(config),
+                  fs::copy_options::overwrite_existing);
     StageOptions options;
     options.quiet = true;
     run_labels_stage(config, options);
-    return read_label_slices(config, 8);
-  };
-  TempDir png_dir, jpeg_dir;
-  auto png = run_one(png_dir.path(), false);
-  auto jpeg = run_one(jpeg_dir.path(), true);
-  NrrdVolume mask = read_truth(png_dir.path(), "mask.nrrd");
+  }
+};
+
+SmallPhantom& small_png() {
+  static SmallPhantom p(false);
+  return p;
+}
+SmallPhantom& small_jpeg() {
+  static SmallPhantom p(true);
+  return p;
+}
+}  // namespace
+
+// The seg files the phantom wrote show exactly the IDs of truth/seg_labels.nrrd: with PNG
+// segmentation the mapping is exact on every pixel of every slice (black slice included), and
+// every colour is an exact palette colour.
+TEST(SegTruth, PngMappingEqualsSegLabelsExactly) {
+  SmallPhantom& p = small_png();
+  ColourMatcher matcher(read_palette(p.config.seg->palette), p.config.seg->tolerance);
+  LabelStats stats;
+  std::uint64_t wrong = 0;
+  for (int k = 0; k < p.nz; ++k) {
+    cv::Mat ids = map_colours(read_slice(p.seg_file(k)), matcher, true, p.seg_file(k), &stats);
+    ASSERT_EQ(ids.size(), cv::Size(p.nx, p.ny));
+    int w = cv::countNonZero(ids != p.slice16(p.seg_labels, k));
+    EXPECT_EQ(w, 0) << "slice " << k;
+    wrong += std::uint64_t(w);
+  }
+  std::printf("PNG seg mapping vs truth/seg_labels: %llu wrong of %llu\n",
+              (unsigned long long)wrong, (unsigned long long)(std::uint64_t(p.nx) * p.ny * p.nz));
+  EXPECT_EQ(stats.exact, std::uint64_t(p.nx) * p.ny * p.nz);
+  EXPECT_EQ(stats.nearest, 0u);
+  EXPECT_EQ(stats.unmatched, 0u);
+}
+
+// JPEG (quality 90, 4:2:0 chroma) blurs colours across boundaries. Issue 4's bar: >= 99.5 % of
+// the pixels inside the body (truth seg_labels > 0, i.e. the truth mask carried onto the drifted
+// grid of each slice) get their true ID, over the whole 64-slice small phantom. Each slice must
+// also reach 99 % (a bad slice cannot hide in the average; a body cross-section of ~20k pixels
+// has ~2k boundary pixels, so 1 % is half of them). Outside the body (gel, background) only the
+// body edge can be wrong: >= 99.5 % there too.
+TEST(SegTruth, JpegMappingInsideBodyAtLeast995Percent) {
+  SmallPhantom& p = small_jpeg();
+  ColourMatcher matcher(read_palette(p.config.seg->palette), p.config.seg->tolerance);
+  std::uint64_t body = 0, body_equal = 0, outside = 0, outside_equal = 0;
+  double worst = 1.0;
+  int worst_k = -1;
+  for (int k = 0; k < p.nz; ++k) {
+    cv::Mat ids = map_colours(read_slice(p.seg_file(k)), matcher, false, p.seg_file(k), nullptr);
+    cv::Mat truth = p.slice16(p.seg_labels, k);
+    cv::Mat in_body = truth > 0, equal = ids == truth;
+    std::uint64_t b = std::uint64_t(cv::countNonZero(in_body));
+    std::uint64_t be = std::uint64_t(cv::countNonZero(in_body & equal));
+    body += b;
+    body_equal += be;
+    outside += truth.total() - b;
+    outside_equal += std::uint64_t(cv::countNonZero(~in_body & equal));
+    if (b > 0 && double(be) / b < worst) worst = double(be) / b, worst_k = k;
+  }
+  ASSERT_GT(body, 500000u);
+  double in_body = double(body_equal) / body, out_body = double(outside_equal) / outside;
+  std::printf(
+      "JPEG seg mapping vs truth/seg_labels: %.4f %% in body (%llu px), %.4f %% outside, "
+      "worst slice %d: %.4f %%\n",
+      100 * in_body, (unsigned long long)body, 100 * out_body, worst_k, 100 * worst);
+  EXPECT_GE(in_body, 0.995);
+  EXPECT_GE(out_body, 0.995);
+  EXPECT_GE(worst, 0.99) << "slice " << worst_k;
+}
+
+// Requirement 2 (resampled labels vs truth/labels.nrrd, TRUE transforms).
+// 1. The stage adds nothing but the mapping and nearest-neighbour resampling: its output equals
+//    resample_labels_nearest(truth/seg_labels) with the true transform, every pixel.
+// 2. Why truth/labels.nrrd itself is not met everywhere: the phantom draws seg(p) = label(q(p))
+//    at the observed pixel centres p; resampling back takes seg at round(p(q)), the label of a
+//    model point up to sqrt(2)/2 = 0.71 px from q. So only pixels within 0.71 px of a boundary
+//    can differ: asserted zero errors at pixels whose truth 3x3 neighbourhood is one label (a
+//    boundary there is >= 1 px away). Overall: every boundary pixel is at risk, about half of
+//    them flip (the boundary falls on either side of the half-way point with equal odds); the
+//    small phantom has ~9 % of its pixels next to a boundary, measured 95.9 % equal overall and
+//    93.8 % in the body (truth mask): asserted >= 95 % and >= 92.5 %.
+TEST(SegTruth, ResampledLabelsExactAwayFromEdges) {
+  SmallPhantom& p = small_png();
+  p.run_stage_with_true_transforms();
+  std::vector<cv::Mat> out = read_label_slices(p.config, p.nz);
+  std::uint64_t not_resampled_truth = 0;
+  for (int k = 0; k < p.nz; ++k) {
+    cv::Mat expected = resample_labels_nearest(p.slice16(p.seg_labels, k), p.transforms.slices[k],
+                                               p.transforms.center_px, cv::Size(p.nx, p.ny));
+    not_resampled_truth += std::uint64_t(cv::countNonZero(out[k] != expected));
+  }
+  EXPECT_EQ(not_resampled_truth, 0u);
+  Agreement a = compare_with_truth(p.dir.path(), out);
+  std::printf(
+      "PNG seg, true transforms, small: %.4f %% equal, %.4f %% in body, %llu/%llu "
+      "interior wrong\n",
+      100 * a.fraction(), 100 * a.body_fraction(), (unsigned long long)a.interior_wrong,
+      (unsigned long long)a.interior);
+  EXPECT_EQ(a.interior_wrong, 0u);
+  EXPECT_GT(a.interior, a.total * 8 / 10);
+  EXPECT_GE(a.fraction(), 0.95);
+  EXPECT_GE(a.body_fraction(), 0.925);
+}
+
+// The JPEG segmentation through the whole labels stage (true transforms): inside the body the
+// labels equal the PNG result's on >= 99.5 % of the voxels (nearest-neighbour resampling only
+// picks pixels of the mapped slice, so the mapping's 99.5 % carries over), and its agreement
+// with truth/labels.nrrd in the body is within 0.5 point of the PNG result's.
+TEST(SegTruth, JpegStageWithinTolerance) {
+  SmallPhantom& png = small_png();
+  SmallPhantom& jpeg = small_jpeg();
+  png.run_stage_with_true_transforms();
+  jpeg.run_stage_with_true_transforms();
+  auto a = read_label_slices(png.config, png.nz), b = read_label_slices(jpeg.config, jpeg.nz);
   std::uint64_t body = 0, same = 0;
-  for (int z = 0; z < 8; ++z)
-    for (int y = 0; y < png[z].rows; ++y)
-      for (int x = 0; x < png[z].cols; ++x) {
-        if (!mask.as<std::uint8_t>()[(std::size_t(z) * png[z].rows + y) * png[z].cols + x])
-          continue;
-        body++;
-        same += png[z].at<std::uint16_t>(y, x) == jpeg[z].at<std::uint16_t>(y, x);
-      }
-  ASSERT_GT(body, 10000u);
-  double agree = double(same) / body;
-  Agreement a_png = compare_with_truth(png_dir.path(), png),
-            a_jpeg = compare_with_truth(jpeg_dir.path(), jpeg);
-  std::printf("JPEG vs PNG seg in body: %.4f %%; vs truth in body: PNG %.4f %%, JPEG %.4f %%\n",
-              100 * agree, 100 * a_png.body_fraction(), 100 * a_jpeg.body_fraction());
-  EXPECT_GE(agree, 0.985);
-  EXPECT_GE(a_jpeg.body_fraction(), a_png.body_fraction() - 0.01);
+  for (int k = 0; k < png.nz; ++k) {
+    cv::Mat m(png.ny, png.nx, CV_8UC1,
+              png.mask.as<std::uint8_t>() + std::size_t(png.nx) * png.ny * k);
+    body += std::uint64_t(cv::countNonZero(m));
+    same += std::uint64_t(cv::countNonZero(m & (a[k] == b[k])));
+  }
+  ASSERT_GT(body, 500000u);
+  Agreement ta = compare_with_truth(png.dir.path(), a), tb = compare_with_truth(jpeg.dir.path(), b);
+  std::printf("JPEG vs PNG labels in body: %.4f %%; vs truth in body: PNG %.4f %%, JPEG %.4f %%\n",
+              100.0 * same / body, 100 * ta.body_fraction(), 100 * tb.body_fraction());
+  EXPECT_GE(double(same) / body, 0.995);
+  EXPECT_GE(tb.body_fraction(), ta.body_fraction() - 0.005);
 }
 
 // End to end: the real register stage, then vispack-labels as an executable. Registration error

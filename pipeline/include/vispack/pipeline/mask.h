@@ -10,12 +10,15 @@
 //      than that, touching it only through thin bridges, stays out); holes filled (lungs).
 //   3. Resampled onto the output grid (the registered colour grid) through ct_to_rgb from
 //      transforms.json: linear interpolation of the 0/255 mask, threshold at half.
-//   4. With mask.refine_gel: pixels of the registered colour slice closer than
-//      mask.gel_distance (Euclidean RGB) to the gel colour (mask.gel_colour, or the median of
-//      the slice border) that are connected to the outside of the mask are removed: gel the CT
-//      mask still covers at the edge, gel-filled notches. Gel-coloured pixels enclosed by
-//      tissue stay.
-//   5. An opening of mask.opening_px output pixels, the largest component, holes filled.
+//   4. With mask.refine_gel: in a band 12 output pixels deep (at least one CT pixel) along the
+//      edge of the carried CT mask, pixels of the registered colour slice that are gel
+//      coloured (remove_edge_gel: closer than mask.gel_distance to the gel colour, or less
+//      than half covered by tissue) and connected to the outside of the mask are removed: gel
+//      the CT mask still covers at the edge, gel-filled notches. Gel-coloured pixels enclosed
+//      by tissue, and anything deeper than the band, stay.
+//   5. Where step 4 removed pixels: an opening of mask.opening_px output pixels (removing gel
+//      connected to the outside opens no holes). Without refinement: the opening, the largest
+//      component and holes filled, on the carried CT mask.
 // Without CT (no "ct" in the config, or a slice beyond the CT stack) the mask is colour-only:
 // distance to the gel > gel_distance, then step 5.
 //
@@ -50,9 +53,16 @@ cv::Vec3f estimate_gel_colour(const cv::Mat& rgb);
 cv::Mat non_gel(const cv::Mat& rgb, const cv::Vec3f& gel, double distance);
 // Colour-only body: non_gel, opening, largest component, holes filled.
 cv::Mat colour_body_mask(const cv::Mat& rgb, const cv::Vec3f& gel, double distance, int opening_px);
-// Step 4: removes from `mask` the gel-coloured pixels connected to its outside.
+// Step 4: removes from `mask` the gel-coloured pixels connected to its outside. A pixel is
+// gel-coloured when its RGB distance to `gel` is below `distance` or below half the median
+// distance of the mask's clearly non-gel pixels (an edge pixel less than half covered by
+// tissue, even where tissue shows through the translucent gel next to it). With a non-empty
+// `band` (0/255, same size) only pixels inside the band may be removed (and only those are
+// examined). `removed` (optional) receives the bounding box of the removed pixels (empty if
+// none). Throws Error on mismatched sizes or a mask that is not CV_8UC1.
 cv::Mat remove_edge_gel(const cv::Mat& mask, const cv::Mat& rgb, const cv::Vec3f& gel,
-                        double distance);
+                        double distance, const cv::Mat& band = cv::Mat(),
+                        cv::Rect* removed = nullptr);
 
 // CT (CV_32F HU) resampled onto an output grid of `size`; `out_to_ct` maps output pixels to CT
 // pixels (stage.h output_to_ct). Linear; outside the CT is −1024 HU (air).

@@ -8,7 +8,8 @@
 // drifted slices agree by construction:
 //   truth(q)    = model(q)                        on the output grid,
 //   observed(p) = gain_k · model(q(p)) + noise    with p = c + R(θ_k)(q − c) + d_k,
-//   seg(p)      = palette[label(q(p))]            (nearest, no blending),
+//   seg(p)      = palette[label(q(p))]            (nearest, no blending; the IDs themselves are
+//                                                  truth/seg_labels.nrrd, on the drifted grid),
 //   ct(u)       = ct_model(q(u)) + noise          with q = c + s·R(φ)(u − c_ct) + e (ct_to_rgb).
 // The generator is deterministic: the same options give a byte-identical folder on the same
 // build (own RNG and distributions, no timestamps, per-slice seeds independent of scheduling).
