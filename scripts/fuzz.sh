@@ -37,5 +37,7 @@ for t in "${targets[@]}"; do
     status=1
   fi
   grep -E '^stat::number_of_executed_units|^stat::peak_rss_mb' "$dir/log.txt" | sed "s/^/fuzz: $t /" || true
+  # Final coverage (cov: edges, ft: features) for docs/RELIABILITY.md.
+  grep -E '^#[0-9]+[[:space:]]+DONE' "$dir/log.txt" | tail -1 | sed "s/^/fuzz: $t /" || true
 done
 exit $status

@@ -18,7 +18,7 @@ packages=(
   dpkg-dev xz-utils
 )
 if [[ "${1:-}" == "--bench" ]]; then
-  packages+=(gnuplot-nox elastix python3-vtk9 hyperfine valgrind time)
+  packages+=(gnuplot-nox elastix python3-vtk9 hyperfine valgrind time python3-matplotlib linux-perf)
 fi
 
 missing=()

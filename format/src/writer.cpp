@@ -5,10 +5,15 @@
 
 #include <algorithm>
 #include <cmath>
+#include <condition_variable>
 #include <cstring>
+#include <deque>
+#include <exception>
 #include <limits>
+#include <memory>
 #include <mutex>
 #include <stdexcept>
+#include <thread>
 #include <unordered_set>
 
 #include "layout.h"
@@ -35,46 +40,49 @@ std::int64_t ceil_div(std::int64_t a, std::int64_t b) {
   return (a + b - 1) / b;
 }
 
-// zstd compression contexts shared by the worker threads (one per brick in flight).
-class CCtxPool {
- public:
-  ~CCtxPool() {
-    for (ZSTD_CCtx* c : free_)
-      ZSTD_freeCCtx(c);
-  }
-  ZSTD_CCtx* acquire() {
-    {
-      std::lock_guard<std::mutex> lock(mutex_);
-      if (!free_.empty()) {
-        ZSTD_CCtx* c = free_.back();
-        free_.pop_back();
-        return c;
-      }
-    }
-    ZSTD_CCtx* c = ZSTD_createCCtx();
-    if (!c) throw std::bad_alloc();
-    return c;
-  }
-  void release(ZSTD_CCtx* c) {
-    std::lock_guard<std::mutex> lock(mutex_);
-    free_.push_back(c);
-  }
+// Per-thread state of a compression worker: its zstd context and scratch buffers, allocated
+// once and reused for every brick (no per-brick allocation or zero-filling).
+struct WorkerScratch {
+  ZSTD_CCtx* cctx = nullptr;
+  std::vector<std::uint8_t> brick;      // the gathered, padded brick
+  std::vector<std::uint8_t> out;        // zstd output (compress bound of one brick)
+  std::vector<std::uint8_t> seen;       // uint16 label presence, all 0 between bricks
+  std::vector<std::uint32_t> ids_seen;  // IDs set in `seen`, to reset them
 
- private:
-  std::mutex mutex_;
-  std::vector<ZSTD_CCtx*> free_;
+  WorkerScratch() {
+    cctx = ZSTD_createCCtx();
+    if (!cctx) throw std::bad_alloc();
+  }
+  ~WorkerScratch() { ZSTD_freeCCtx(cctx); }
+  WorkerScratch(const WorkerScratch&) = delete;
+  WorkerScratch& operator=(const WorkerScratch&) = delete;
+};
+
+// Uninitialised byte buffer (the payload is always fully written before use).
+struct Payload {
+  std::unique_ptr<std::uint8_t[]> data;
+  std::size_t size = 0;
+  void assign(const std::uint8_t* src, std::size_t n) {
+    data.reset(new std::uint8_t[n]);
+    std::memcpy(data.get(), src, n);
+    size = n;
+  }
+  void clear() {
+    data.reset();
+    size = 0;
+  }
 };
 
 struct BrickResult {
   IndexEntry entry{};
-  std::vector<std::uint8_t> payload;  // stored bytes (empty for uniform)
+  Payload payload;  // stored bytes (empty for uniform)
   std::vector<std::uint32_t> labels;
 };
 
 // Stats over a whole (padded) brick: the padding replicates valid voxels, so the minimum,
 // maximum and label set equal those of the valid voxels alone.
 void brick_stats(ChannelType type, const std::uint8_t* data, std::size_t voxels, IndexEntry& e,
-                 std::vector<std::uint32_t>& labels) {
+                 std::vector<std::uint32_t>& labels, WorkerScratch& scratch) {
   std::memset(e.min, 0, 8);
   std::memset(e.max, 0, 8);
   switch (type) {
@@ -117,12 +125,25 @@ void brick_stats(ChannelType type, const std::uint8_t* data, std::size_t voxels,
     }
     case ChannelType::kUint16: {
       const auto* v = reinterpret_cast<const std::uint16_t*>(data);
-      std::vector<std::uint8_t> seen(65536, 0);
-      for (std::size_t i = 0; i < voxels; ++i)
-        seen[v[i]] = 1;
-      for (std::uint32_t id = 0; id < 65536; ++id) {
-        if (seen[id]) labels.push_back(id);
+      std::vector<std::uint8_t>& seen = scratch.seen;
+      std::vector<std::uint32_t>& ids = scratch.ids_seen;
+      if (seen.empty()) seen.assign(65536, 0);
+      ids.clear();
+      std::uint16_t last = v[0];
+      seen[last] = 1;
+      ids.push_back(last);
+      for (std::size_t i = 1; i < voxels; ++i) {
+        if (v[i] == last) continue;  // runs are the common case in label volumes
+        last = v[i];
+        if (!seen[last]) {
+          seen[last] = 1;
+          ids.push_back(last);
+        }
       }
+      std::sort(ids.begin(), ids.end());
+      for (std::uint32_t id : ids)
+        seen[id] = 0;
+      labels.assign(ids.begin(), ids.end());
       std::uint16_t lo = std::uint16_t(labels.front()), hi = std::uint16_t(labels.back());
       std::memcpy(e.min, &lo, 2);
       std::memcpy(e.max, &hi, 2);
@@ -131,54 +152,169 @@ void brick_stats(ChannelType type, const std::uint8_t* data, std::size_t voxels,
   }
 }
 
+// Reduces the children of output voxel (x, y) in the general case (fewer than eight children
+// at the volume's edges), gathering them in z, y, x order as the reduce_* functions expect.
+void reduce_generic(ChannelType type, const std::uint8_t* src, int nzc, std::int64_t dx,
+                    std::int64_t dy, std::int64_t x, std::int64_t y, std::uint8_t* out) {
+  const std::size_t bytes = channel_type_bytes(type);
+  const std::size_t plane = std::size_t(dx) * std::size_t(dy);
+  std::uint8_t children[8 * 4];
+  int n = 0;
+  for (int z = 0; z < nzc; ++z) {
+    for (std::int64_t yy = 2 * y; yy < std::min(dy, 2 * y + 2); ++yy) {
+      for (std::int64_t xx = 2 * x; xx < std::min(dx, 2 * x + 2); ++xx) {
+        std::memcpy(children + n * bytes, src + (z * plane + yy * dx + xx) * bytes, bytes);
+        ++n;
+      }
+    }
+  }
+  switch (type) {
+    case ChannelType::kRgba8: {
+      auto v = reduce_rgba_alpha_weighted(children, n);
+      std::memcpy(out, v.data(), 4);
+      break;
+    }
+    case ChannelType::kInt16: {
+      std::int16_t c[8];
+      std::memcpy(c, children, 2 * n);
+      std::int16_t v = reduce_mean_i16(c, n);
+      std::memcpy(out, &v, 2);
+      break;
+    }
+    case ChannelType::kUint8: {
+      std::uint16_t c[8];
+      for (int i = 0; i < n; ++i)
+        c[i] = children[i];
+      *out = std::uint8_t(reduce_majority(c, n));
+      break;
+    }
+    case ChannelType::kUint16: {
+      std::uint16_t c[8];
+      std::memcpy(c, children, 2 * n);
+      std::uint16_t v = reduce_majority(c, n);
+      std::memcpy(out, &v, 2);
+      break;
+    }
+  }
+}
+
+// Fast paths for an output voxel with all eight children present. Each gives exactly the
+// result of the reduce_* function on the same children (integer arithmetic only):
+//   mean of 8:      round_div(sum, 8) = floor((2 * sum + 8) / 16) = (sum + 4) >> 3 (floor shift);
+//   alpha-weighted: when all eight alphas are equal (alpha > 0, or all 0), the weighted mean
+//                   round_div(alpha * sum_c, 8 * alpha) equals round_div(sum_c, 8);
+//   majority:       eight equal IDs give that ID.
+// `r[k]` points at the first child of row k (k = 2 * z + y), x pairs adjacent.
+inline void reduce8_rgba(const std::uint8_t* const r[4], std::uint8_t* out) {
+  std::uint32_t sum_a = 0, a_min = 255, a_max = 0;
+  for (int k = 0; k < 4; ++k) {
+    for (int i = 0; i < 2; ++i) {
+      std::uint32_t a = r[k][4 * i + 3];
+      sum_a += a;
+      a_min = std::min(a_min, a);
+      a_max = std::max(a_max, a);
+    }
+  }
+  if (a_min == a_max) {
+    for (int c = 0; c < 3; ++c) {
+      std::uint32_t s = 0;
+      for (int k = 0; k < 4; ++k)
+        s += std::uint32_t(r[k][c]) + r[k][4 + c];
+      out[c] = std::uint8_t((s + 4) >> 3);
+    }
+  } else {
+    for (int c = 0; c < 3; ++c) {
+      std::uint32_t s = 0;
+      for (int k = 0; k < 4; ++k)
+        s += std::uint32_t(r[k][c]) * r[k][3] + std::uint32_t(r[k][4 + c]) * r[k][7];
+      out[c] = std::uint8_t((2 * s + sum_a) / (2 * sum_a));  // round_div, non-negative
+    }
+  }
+  out[3] = std::uint8_t((sum_a + 4) >> 3);
+}
+
+template <typename T>
+inline T majority8(const T* const r[4]) {
+  const T v = r[0][0];
+  if (r[0][1] == v && r[1][0] == v && r[1][1] == v && r[2][0] == v && r[2][1] == v &&
+      r[3][0] == v && r[3][1] == v) {
+    return v;
+  }
+  std::uint16_t c[8];
+  for (int k = 0; k < 4; ++k) {
+    c[2 * k] = r[k][0];
+    c[2 * k + 1] = r[k][1];
+  }
+  return T(reduce_majority(c, 8));
+}
+
+// Reduces output row y where all of its rows' children exist (2 * y + 1 < dy and nzc == 2),
+// for x in [0, full_x); the caller handles x >= full_x.
+void downsample_row_full(ChannelType type, const std::uint8_t* src, std::int64_t dx,
+                         std::int64_t dy, std::int64_t y, std::int64_t full_x, std::uint8_t* dst) {
+  const std::size_t bytes = channel_type_bytes(type);
+  const std::size_t plane = std::size_t(dx) * std::size_t(dy) * bytes;
+  const std::size_t row = std::size_t(dx) * bytes;
+  const std::uint8_t* base = src + std::size_t(2 * y) * row;
+  const std::uint8_t* rows[4] = {base, base + row, base + plane, base + plane + row};
+  switch (type) {
+    case ChannelType::kRgba8:
+      for (std::int64_t x = 0; x < full_x; ++x) {
+        const std::uint8_t* r[4];
+        for (int k = 0; k < 4; ++k)
+          r[k] = rows[k] + 8 * x;
+        reduce8_rgba(r, dst + 4 * x);
+      }
+      break;
+    case ChannelType::kInt16:
+      for (std::int64_t x = 0; x < full_x; ++x) {
+        std::int32_t s = 0;
+        for (int k = 0; k < 4; ++k) {
+          std::int16_t v[2];
+          std::memcpy(v, rows[k] + 4 * x, 4);
+          s += std::int32_t(v[0]) + v[1];
+        }
+        const std::int16_t m = std::int16_t((s + 4) >> 3);
+        std::memcpy(dst + 2 * x, &m, 2);
+      }
+      break;
+    case ChannelType::kUint8:
+      for (std::int64_t x = 0; x < full_x; ++x) {
+        const std::uint8_t* r[4];
+        for (int k = 0; k < 4; ++k)
+          r[k] = rows[k] + 2 * x;
+        dst[x] = majority8(r);
+      }
+      break;
+    case ChannelType::kUint16:
+      for (std::int64_t x = 0; x < full_x; ++x) {
+        std::uint16_t c[4][2];
+        const std::uint16_t* r[4];
+        for (int k = 0; k < 4; ++k) {
+          std::memcpy(c[k], rows[k] + 4 * x, 4);
+          r[k] = c[k];
+        }
+        const std::uint16_t m = majority8(r);
+        std::memcpy(dst + 2 * x, &m, 2);
+      }
+      break;
+  }
+}
+
 // Reduces 2x2x2 children of one output slice. `src` holds `nzc` (1 or 2) slices of dx*dy.
 void downsample_slice(ChannelType type, const std::uint8_t* src, int nzc, std::int64_t dx,
                       std::int64_t dy, std::uint8_t* dst, int threads) {
   const std::int64_t ox = ceil_div(dx, 2), oy = ceil_div(dy, 2);
   const std::size_t bytes = channel_type_bytes(type);
-  const std::size_t plane = std::size_t(dx) * std::size_t(dy);
   auto row = [&](std::int64_t y) {
-    std::uint8_t children[8 * 4];
-    for (std::int64_t x = 0; x < ox; ++x) {
-      int n = 0;
-      for (int z = 0; z < nzc; ++z) {
-        for (std::int64_t yy = 2 * y; yy < std::min(dy, 2 * y + 2); ++yy) {
-          for (std::int64_t xx = 2 * x; xx < std::min(dx, 2 * x + 2); ++xx) {
-            std::memcpy(children + n * bytes, src + (z * plane + yy * dx + xx) * bytes, bytes);
-            ++n;
-          }
-        }
-      }
-      std::uint8_t* out = dst + (std::size_t(y) * ox + x) * bytes;
-      switch (type) {
-        case ChannelType::kRgba8: {
-          auto v = reduce_rgba_alpha_weighted(children, n);
-          std::memcpy(out, v.data(), 4);
-          break;
-        }
-        case ChannelType::kInt16: {
-          std::int16_t c[8];
-          std::memcpy(c, children, 2 * n);
-          std::int16_t v = reduce_mean_i16(c, n);
-          std::memcpy(out, &v, 2);
-          break;
-        }
-        case ChannelType::kUint8: {
-          std::uint16_t c[8];
-          for (int i = 0; i < n; ++i)
-            c[i] = children[i];
-          *out = std::uint8_t(reduce_majority(c, n));
-          break;
-        }
-        case ChannelType::kUint16: {
-          std::uint16_t c[8];
-          std::memcpy(c, children, 2 * n);
-          std::uint16_t v = reduce_majority(c, n);
-          std::memcpy(out, &v, 2);
-          break;
-        }
-      }
+    std::uint8_t* out = dst + std::size_t(y) * std::size_t(ox) * bytes;
+    std::int64_t x = 0;
+    if (nzc == 2 && 2 * y + 1 < dy) {
+      x = dx / 2;  // output voxels with both x children
+      downsample_row_full(type, src, dx, dy, y, x, out);
     }
+    for (; x < ox; ++x)
+      reduce_generic(type, src, nzc, dx, dy, x, y, out + std::size_t(x) * bytes);
   };
   if (ox * oy < 65536 || threads <= 1) {
     for (std::int64_t y = 0; y < oy; ++y)
@@ -282,12 +418,28 @@ int Writer::level_count_for(const std::array<std::int64_t, 3>& dims, int brick_e
 }
 
 struct Writer::Impl {
+  // One slab of one level handed to the workers: its slices (moved out of the level), and the
+  // results of its bricks in index order. Fields other than `slab`, `results` and the constants
+  // are guarded by Impl::mutex.
+  struct Batch {
+    int level = 0;
+    std::int64_t bz = 0;
+    int nzv = 0;
+    std::int64_t items = 0;
+    std::vector<std::vector<std::uint8_t>> slab;  // per channel: nzv slices of the level
+    std::vector<BrickResult> results;
+    std::int64_t next = 0;  // next brick to hand out
+    std::int64_t done = 0;  // bricks finished
+    std::exception_ptr error;
+  };
+
   struct Level {
     std::array<std::int64_t, 3> dims{};
     std::array<std::int64_t, 3> grid{};
     std::int64_t received = 0;
     std::uint64_t index_base = 0;
     std::vector<std::vector<std::uint8_t>> slab;        // per channel: edge slices
+    std::vector<std::vector<std::uint8_t>> spare;       // slab buffers back from the workers
     std::vector<std::vector<std::uint8_t>> next_slice;  // per channel: one slice of level + 1
   };
 
@@ -300,12 +452,22 @@ struct Writer::Impl {
   std::vector<IndexEntry> entries;
   std::vector<std::vector<std::uint32_t>> entry_labels;
   std::vector<bool> filled;
-  std::vector<std::vector<std::uint8_t>> narrow;  // per channel: level-0 slice in stored type
   std::vector<std::uint8_t> zeros = std::vector<std::uint8_t>(kPayloadAlignment, 0);
   std::uint64_t pos = 0;
   std::int64_t slices = 0;
   bool finished = false;
-  CCtxPool pool;
+
+  // Persistent compression workers. Slabs are compressed while the calling thread gathers the
+  // next slab and builds the pyramid; their bricks are written in the order the slabs were
+  // flushed, so the file does not depend on scheduling.
+  std::mutex mutex;
+  std::condition_variable work_ready;            // a batch has bricks to hand out, or stop
+  std::condition_variable batch_done;            // a batch finished
+  std::deque<Batch*> pending;                    // batches with bricks not yet handed out
+  std::deque<std::unique_ptr<Batch>> in_flight;  // flushed, not yet written (file order)
+  bool stop = false;
+  std::vector<std::thread> workers;
+  std::unique_ptr<WorkerScratch> own_scratch;  // the calling thread's, when it helps
 
   Impl(std::string p, WriterOptions o) : path(std::move(p)), opt(std::move(o)), file(path) {
     threads = resolve_threads(opt.threads);
@@ -332,7 +494,8 @@ struct Writer::Impl {
       base += std::uint64_t(lv.grid[0] * lv.grid[1] * lv.grid[2]) * stored.size();
       const std::size_t plane = std::size_t(d[0]) * std::size_t(d[1]);
       for (const auto& s : stored) {
-        lv.slab.emplace_back(plane * std::size_t(e) * channel_type_bytes(s.type));
+        lv.slab.emplace_back(plane * std::size_t(std::min<std::int64_t>(e, d[2])) *
+                             channel_type_bytes(s.type));
         if (l + 1 < n_levels) {
           lv.next_slice.emplace_back(std::size_t(ceil_div(d[0], 2)) *
                                      std::size_t(ceil_div(d[1], 2)) * channel_type_bytes(s.type));
@@ -350,19 +513,68 @@ struct Writer::Impl {
     entries.resize(base);
     entry_labels.resize(base);
     filled.assign(base, false);
-    narrow.resize(stored.size());
-    for (std::size_t c = 0; c < stored.size(); ++c) {
-      if (is_label_type(stored[c].type) && stored[c].type == ChannelType::kUint8) {
-        narrow[c].resize(std::size_t(opt.dims[0]) * std::size_t(opt.dims[1]));
-      }
-    }
     file.write(zeros.data(), zeros.size());  // header placeholder + zero padding up to 4096
     pos = kPayloadAlignment;
+    workers.reserve(std::size_t(threads));
+    try {
+      for (int t = 0; t < threads; ++t)
+        workers.emplace_back([this] { worker_loop(); });
+    } catch (...) {
+      stop_workers();
+      throw;
+    }
   }
 
-  void make_brick(int L, int c, std::int64_t bx, std::int64_t by, std::int64_t bz, int nzv,
-                  BrickResult& r) {
+  ~Impl() { stop_workers(); }
+
+  void stop_workers() {
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      stop = true;
+    }
+    work_ready.notify_all();
+    for (auto& t : workers)
+      t.join();
+    workers.clear();
+  }
+
+  // Takes the next brick of the oldest pending batch and makes it; `lock` holds `mutex` on
+  // entry and on return, and `pending` is not empty.
+  void run_one(std::unique_lock<std::mutex>& lock, WorkerScratch& scratch) {
+    Batch* b = pending.front();
+    const std::int64_t i = b->next++;
+    if (b->next == b->items) pending.pop_front();
+    lock.unlock();
+    std::exception_ptr error;
+    try {
+      make_brick(*b, i, scratch);
+    } catch (...) {
+      error = std::current_exception();
+    }
+    lock.lock();
+    if (error && !b->error) b->error = error;
+    if (++b->done == b->items) batch_done.notify_all();
+  }
+
+  void worker_loop() {
+    WorkerScratch scratch;
+    std::unique_lock<std::mutex> lock(mutex);
+    for (;;) {
+      work_ready.wait(lock, [&] { return stop || !pending.empty(); });
+      if (stop) return;
+      run_one(lock, scratch);
+    }
+  }
+
+  void make_brick(Batch& b, std::int64_t i, WorkerScratch& scratch) {
+    const int L = b.level;
     const Level& lv = levels[L];
+    const std::int64_t per_channel = lv.grid[0] * lv.grid[1];
+    const int c = int(i / per_channel);
+    const std::int64_t bx = (i % per_channel) % lv.grid[0], by = (i % per_channel) / lv.grid[0];
+    const std::int64_t bz = b.bz;
+    const int nzv = b.nzv;
+    BrickResult& r = b.results[std::size_t(i)];
     const std::int64_t e = opt.brick_edge;
     const ChannelType type = stored[c].type;
     const std::size_t bytes = channel_type_bytes(type);
@@ -372,12 +584,13 @@ struct Writer::Impl {
     const std::size_t row_bytes = std::size_t(e) * bytes;
     const std::size_t plane_bytes = row_bytes * std::size_t(e);
     const std::size_t brick_bytes = plane_bytes * std::size_t(e);
-    std::vector<std::uint8_t> buf(brick_bytes);
-    const std::uint8_t* slab = lv.slab[c].data();
+    if (scratch.brick.size() < brick_bytes) scratch.brick.resize(brick_bytes);
+    std::uint8_t* buf = scratch.brick.data();
+    const std::uint8_t* slab = b.slab[c].data();
     for (std::int64_t z = 0; z < e; ++z) {
-      std::uint8_t* plane = buf.data() + std::size_t(z) * plane_bytes;
+      std::uint8_t* plane = buf + std::size_t(z) * plane_bytes;
       if (z >= nzv) {
-        std::memcpy(plane, buf.data() + std::size_t(nzv - 1) * plane_bytes, plane_bytes);
+        std::memcpy(plane, buf + std::size_t(nzv - 1) * plane_bytes, plane_bytes);
         continue;
       }
       for (std::int64_t y = 0; y < e; ++y) {
@@ -399,65 +612,119 @@ struct Writer::Impl {
     en.bz = std::uint32_t(bz);
     en.level = std::uint8_t(L);
     en.channel = std::uint8_t(c);
-    brick_stats(type, buf.data(), brick_bytes / bytes, en, r.labels);
+    brick_stats(type, buf, brick_bytes / bytes, en, r.labels, scratch);
     if (std::memcmp(en.min, en.max, 8) == 0) {
       en.codec = std::uint8_t(Codec::kUniform);
       return;  // offset, size, checksum stay 0
     }
     en.codec = std::uint8_t(Codec::kRaw);
+    const std::uint8_t* stored_bytes = buf;
+    std::size_t stored_size = brick_bytes;
     if (opt.compress) {
-      std::vector<std::uint8_t> out(ZSTD_compressBound(brick_bytes));
-      ZSTD_CCtx* cctx = pool.acquire();
-      std::size_t n =
-          ZSTD_compressCCtx(cctx, out.data(), out.size(), buf.data(), brick_bytes, opt.zstd_level);
-      pool.release(cctx);
+      const std::size_t bound = ZSTD_compressBound(brick_bytes);
+      if (scratch.out.size() < bound) scratch.out.resize(bound);
+      std::size_t n = ZSTD_compressCCtx(scratch.cctx, scratch.out.data(), bound, buf, brick_bytes,
+                                        opt.zstd_level);
       if (ZSTD_isError(n)) {
         throw Error(cat(path, ": zstd failed on brick level ", L, " channel ", stored[c].name, " (",
                         bx, ",", by, ",", bz, "): ", ZSTD_getErrorName(n)));
       }
       if (n < brick_bytes) {
-        out.resize(n);
-        out.shrink_to_fit();
-        r.payload = std::move(out);
+        stored_bytes = scratch.out.data();
+        stored_size = n;
         en.codec = std::uint8_t(Codec::kZstd);
       }
     }
-    if (en.codec == std::uint8_t(Codec::kRaw)) r.payload = std::move(buf);
-    en.stored_size = r.payload.size();
-    en.checksum = xxh64(r.payload.data(), r.payload.size());
+    r.payload.assign(stored_bytes, stored_size);
+    en.stored_size = stored_size;
+    en.checksum = xxh64(stored_bytes, stored_size);
   }
 
-  void flush(int L, std::int64_t bz, int nzv) {
-    const Level& lv = levels[L];
+  // Writes the oldest in-flight batch once its bricks are done (rethrowing a worker's error),
+  // and gives its slab buffers back to its level.
+  void write_front(std::unique_lock<std::mutex>& lock) {
+    Batch& b = *in_flight.front();
+    // Rather than idle, the calling thread makes bricks too while it waits (the pipeline's
+    // tail, or a level whose previous slab is still being compressed).
+    while (b.done != b.items) {
+      if (!pending.empty()) {
+        if (!own_scratch) own_scratch = std::make_unique<WorkerScratch>();
+        run_one(lock, *own_scratch);
+      } else {
+        batch_done.wait(lock);
+      }
+    }
+    std::unique_ptr<Batch> owned = std::move(in_flight.front());
+    in_flight.pop_front();
+    lock.unlock();
+    if (b.error) std::rethrow_exception(b.error);
+    Level& lv = levels[b.level];
     const std::int64_t gx = lv.grid[0], gy = lv.grid[1];
     const std::int64_t per_channel = gx * gy;
-    const std::int64_t items = per_channel * std::int64_t(stored.size());
-    std::vector<BrickResult> results(static_cast<std::size_t>(items));
-    parallel_for(items, threads, [&](std::int64_t i) {
-      int c = int(i / per_channel);
-      std::int64_t r = i % per_channel;
-      make_brick(L, c, r % gx, r / gx, bz, nzv, results[std::size_t(i)]);
-    });
     const std::uint64_t grid_count = std::uint64_t(gx * gy * lv.grid[2]);
-    for (std::int64_t i = 0; i < items; ++i) {
-      BrickResult& r = results[std::size_t(i)];
-      if (!r.payload.empty()) {
+    for (std::int64_t i = 0; i < b.items; ++i) {
+      BrickResult& r = b.results[std::size_t(i)];
+      if (r.payload.size) {
         r.entry.offset = pos;
-        file.write(r.payload.data(), r.payload.size());
-        std::uint64_t pad = align_up(r.payload.size(), kPayloadAlignment) - r.payload.size();
+        file.write(r.payload.data.get(), r.payload.size);
+        std::uint64_t pad = align_up(r.payload.size, kPayloadAlignment) - r.payload.size;
         if (pad) file.write(zeros.data(), pad);
-        pos += r.payload.size() + pad;
-        std::vector<std::uint8_t>().swap(r.payload);
+        pos += r.payload.size + pad;
+        r.payload.clear();
       }
       int c = int(i / per_channel);
       std::uint64_t k = lv.index_base + std::uint64_t(c) * grid_count +
-                        std::uint64_t(bz * gx * gy) + std::uint64_t(i % per_channel);
+                        std::uint64_t(b.bz * gx * gy) + std::uint64_t(i % per_channel);
       entries[k] = r.entry;
       entry_labels[k] = std::move(r.labels);
       filled[k] = true;
     }
+    lv.spare = std::move(b.slab);
+    lock.lock();
   }
 
+  // Hands slab `bz` of level L (its first nzv slices valid) to the workers. At most two slabs
+  // of a level exist at a time: the one being filled and the one being compressed.
+  void flush(int L, std::int64_t bz, int nzv) {
+    Level& lv = levels[L];
+    {
+      std::unique_lock<std::mutex> lock(mutex);
+      auto has_level = [&] {
+        for (const auto& b : in_flight)
+          if (b->level == L) return true;
+        return false;
+      };
+      while (has_level())
+        write_front(lock);
+    }
+    auto b = std::make_unique<Batch>();
+    b->level = L;
+    b->bz = bz;
+    b->nzv = nzv;
+    b->items = lv.grid[0] * lv.grid[1] * std::int64_t(stored.size());
+    b->results.resize(std::size_t(b->items));
+    b->slab = std::move(lv.slab);
+    if (lv.spare.empty()) {
+      for (const auto& s : b->slab)
+        lv.spare.emplace_back(s.size());
+    }
+    lv.slab = std::move(lv.spare);
+    lv.spare.clear();
+    std::unique_lock<std::mutex> lock(mutex);
+    pending.push_back(b.get());
+    in_flight.push_back(std::move(b));
+    lock.unlock();
+    work_ready.notify_all();
+  }
+
+  // Writes every in-flight batch, in order.
+  void drain() {
+    std::unique_lock<std::mutex> lock(mutex);
+    while (!in_flight.empty())
+      write_front(lock);
+  }
+
+  // Slice z of level L: `slices_in[c]` may already point into the slab (then it is not copied).
   void push(int L, const std::vector<const std::uint8_t*>& slices_in) {
     Level& lv = levels[L];
     const std::int64_t e = opt.brick_edge;
@@ -466,7 +733,8 @@ struct Writer::Impl {
     const std::size_t plane = std::size_t(lv.dims[0]) * std::size_t(lv.dims[1]);
     for (std::size_t c = 0; c < stored.size(); ++c) {
       const std::size_t bytes = channel_type_bytes(stored[c].type);
-      std::memcpy(lv.slab[c].data() + std::size_t(zs) * plane * bytes, slices_in[c], plane * bytes);
+      std::uint8_t* dst = lv.slab[c].data() + std::size_t(zs) * plane * bytes;
+      if (slices_in[c] != dst) std::memcpy(dst, slices_in[c], plane * bytes);
     }
     const bool last = z == lv.dims[2] - 1;
     if (L + 1 < int(levels.size()) && (z % 2 == 1 || last)) {
@@ -484,7 +752,17 @@ struct Writer::Impl {
     if (zs == e - 1 || last) flush(L, z / e, int(zs + 1));
   }
 
+  // Where slice `received` of level 0, channel c, goes in the slab.
+  std::uint8_t* level0_slot(std::size_t c) {
+    Level& lv = levels[0];
+    const std::size_t plane = std::size_t(lv.dims[0]) * std::size_t(lv.dims[1]);
+    const std::int64_t zs = lv.received % opt.brick_edge;
+    return lv.slab[c].data() + std::size_t(zs) * plane * channel_type_bytes(stored[c].type);
+  }
+
   void finish() {
+    drain();
+    stop_workers();
     const std::uint64_t payload_end = pos;
     std::vector<std::uint32_t> label_ids;
     for (std::size_t k = 0; k < entries.size(); ++k) {
@@ -621,17 +899,25 @@ void Writer::append_slice(const std::vector<const void*>& channel_slices) {
     }
     in[c] = static_cast<const std::uint8_t*>(channel_slices[c]);
     if (is_label_type(m.stored[c].type) && m.stored[c].type == ChannelType::kUint8) {
+      // Narrowed straight into the level-0 slab; checked first, so a bad slice leaves the
+      // slab as it was.
       const auto* src = static_cast<const std::uint16_t*>(channel_slices[c]);
-      std::uint8_t* dst = m.narrow[c].data();
-      for (std::size_t i = 0; i < plane; ++i) {
-        if (src[i] > 255) {
-          throw InputError(cat(m.path, ": slice ", m.slices, ", channel \"", m.stored[c].name,
-                               "\", voxel (", i % std::size_t(m.opt.dims[0]), ", ",
-                               i / std::size_t(m.opt.dims[0]), "): label ID ", src[i],
-                               " does not fit the stored type uint8"));
+      std::uint16_t any_high = 0;
+      for (std::size_t i = 0; i < plane; ++i)
+        any_high |= std::uint16_t(src[i] & 0xFF00u);
+      if (any_high) {
+        for (std::size_t i = 0; i < plane; ++i) {
+          if (src[i] > 255) {
+            throw InputError(cat(m.path, ": slice ", m.slices, ", channel \"", m.stored[c].name,
+                                 "\", voxel (", i % std::size_t(m.opt.dims[0]), ", ",
+                                 i / std::size_t(m.opt.dims[0]), "): label ID ", src[i],
+                                 " does not fit the stored type uint8"));
+          }
         }
-        dst[i] = std::uint8_t(src[i]);
       }
+      std::uint8_t* dst = m.level0_slot(c);
+      for (std::size_t i = 0; i < plane; ++i)
+        dst[i] = std::uint8_t(src[i]);
       in[c] = dst;
     }
   }

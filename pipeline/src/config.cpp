@@ -258,6 +258,35 @@ void check_unknown_keys(const json& node, const std::string& path, const std::st
   }
 }
 
+// Issue 7: an output must never overwrite an input. `output` and `vdb_output` may not be the
+// config, the palette, or a file in a slice folder; `work_dir` may not be a slice folder.
+void check_outputs_apart_from_inputs(const Config& config, const Section& top) {
+  auto same = [](const std::string& a, const std::string& b) {
+    std::error_code ec1, ec2;
+    return fs::weakly_canonical(a, ec1) == fs::weakly_canonical(b, ec2);
+  };
+  std::vector<std::pair<std::string, std::string>> folders = {{"rgb.dir", config.rgb.dir}};
+  if (config.ct) folders.emplace_back("ct.dir", config.ct->dir);
+  if (config.seg) folders.emplace_back("seg.dir", config.seg->dir);
+  std::vector<std::pair<std::string, std::string>> files = {{"the config file", config.path}};
+  if (config.seg && !config.seg->palette.empty())
+    files.emplace_back("seg.palette", config.seg->palette);
+  std::vector<std::pair<const char*, std::string>> outputs = {{"output", config.output}};
+  if (!config.vdb_output.empty()) outputs.emplace_back("vdb_output", config.vdb_output);
+  for (const auto& [key, out] : outputs) {
+    for (const auto& [what, in] : files)
+      if (same(out, in)) top.fail(key, cat(out, " is ", what, ", an input"));
+    for (const auto& [what, dir] : folders)
+      if (same(fs::path(out).parent_path().string(), dir))
+        top.fail(key, cat(out, " lies in the input slice folder ", what, " (", dir, ")"));
+    std::error_code ec;
+    if (fs::is_directory(out, ec)) top.fail(key, cat(out, " is a folder, not a file"));
+  }
+  for (const auto& [what, dir] : folders)
+    if (same(config.work_dir, dir))
+      top.fail("work_dir", cat(config.work_dir, " is the input slice folder ", what));
+}
+
 }  // namespace
 
 std::vector<std::string> config_key_paths() {
@@ -277,7 +306,7 @@ Config load_config(const std::string& path) {
   try {
     // Comments (// and /* */) are allowed, as are "_comment" keys.
     config.raw_json = json::parse(text, nullptr, true, /*ignore_comments=*/true);
-  } catch (const json::parse_error& e) {
+  } catch (const json::exception& e) {  // parse_error, and out_of_range for a number overflow
     throw ConfigError(cat(config.path, ": not valid JSON: ", e.what()));
   }
   const std::string& file = config.path;
@@ -401,6 +430,7 @@ Config load_config(const std::string& path) {
   config.vdb_output = config.vdb.enabled ? resolve(base, vdb_output) : "";
   if (config.vdb.enabled && config.vdb_output == config.output)
     top.fail("vdb_output", "must differ from output");
+  check_outputs_apart_from_inputs(config, top);
   top.finish();
   return config;
 }

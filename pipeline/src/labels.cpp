@@ -24,6 +24,12 @@ namespace {
 // resolution and subsamples chroma, so luma is the better witness at a boundary.
 constexpr int kFillRadius = 4;
 constexpr double kChromaWeight = 0.1;
+// A nearest match farther than this from its palette colour is "unsure" and decided by the
+// neighbourhood like an unmatched pixel (JPEG mixes the two sides' chroma at a boundary, which
+// can land nearer a third palette colour). Measured on the small phantom (seed 3, JPEG q90),
+// against truth/seg_labels.nrrd inside the body: 98.75 % with no unsure class, 99.32 % at 12,
+// 99.53 % at 18, 99.67 % at 32 (worst slice 99.43 %), 99.60 % at 38, 99.23 % at 44.
+constexpr double kConfidentDistance = 32.0;
 std::uint32_t pack_rgb(int r, int g, int b) {
   return (std::uint32_t(r) << 16) | (std::uint32_t(g) << 8) | std::uint32_t(b);
 }
@@ -226,6 +232,10 @@ cv::Mat map_colours(const cv::Mat& seg_in, const ColourMatcher& matcher, bool st
         ++local.exact;
       } else if (m.matched) {
         ++local.nearest;
+        if (m.distance > kConfidentDistance) {
+          matched.at<std::uint8_t>(y, x) = 0;
+          unsure.push_back({x, y});
+        }
       } else {
         if (strict)
           throw InputError(
@@ -240,7 +250,8 @@ cv::Mat map_colours(const cv::Mat& seg_in, const ColourMatcher& matcher, bool st
       }
     }
   }
-  // Neighbourhood fill: candidates are the IDs of matched pixels in the 9x9 window; the one
+  // Neighbourhood fill of unmatched and unsure pixels: candidates are the IDs of the confident
+  // (exact, or nearest within kConfidentDistance) pixels in the 9x9 window; the one
   // whose palette colour is nearest in luma-weighted YCbCr wins (ties: smaller ID). Reads only
   // matched pixels, so the result does not depend on the order of the unmatched ones.
   std::vector<std::uint16_t> candidates;

@@ -155,7 +155,7 @@ cv::Mat remove_edge_gel(const cv::Mat& mask, const cv::Mat& rgb, const cv::Vec3f
   const float g0 = gel[0], g1 = gel[1], g2 = gel[2];
   const float limit = float(distance * distance);
   std::vector<std::pair<int, float>> examined;  // (offset y·cols + x, squared distance)
-  std::vector<float> tissue;                     // squared distances of clearly non-gel pixels
+  std::vector<float> tissue;                    // squared distances of clearly non-gel pixels
   for (int y = 0; y < mask.rows; ++y) {
     const std::uint8_t* m = mask.ptr<std::uint8_t>(y);
     const std::uint8_t* b = band.empty() ? m : band.ptr<std::uint8_t>(y);
@@ -187,12 +187,25 @@ cv::Mat remove_edge_gel(const cv::Mat& mask, const cv::Mat& rgb, const cv::Vec3f
   auto outside = [&](int x, int y) {
     return x < 0 || y < 0 || x >= w || y >= h || mask.at<std::uint8_t>(y, x) == 0;
   };
+  // A breadth-first fill over the gel-coloured pixels only (cv::floodFill clears a mask of the
+  // whole image on every call: far too slow for many small seeds).
+  std::vector<int> queue;
   for (const auto& e : examined) {
     if (gp[e.first] != 255) continue;
     const int x = e.first % w, y = e.first / w;
-    if (outside(x - 1, y) || outside(x + 1, y) || outside(x, y - 1) || outside(x, y + 1))
-      cv::floodFill(gelish, cv::Point(x, y), cv::Scalar(128), nullptr, cv::Scalar(0),
-                    cv::Scalar(0), 4);
+    if (!(outside(x - 1, y) || outside(x + 1, y) || outside(x, y - 1) || outside(x, y + 1)))
+      continue;
+    gp[e.first] = 128;
+    queue.assign(1, e.first);
+    while (!queue.empty()) {
+      const int o = queue.back();
+      queue.pop_back();
+      const int ox = o % w, oy = o / w;
+      if (ox > 0 && gp[o - 1] == 255) gp[o - 1] = 128, queue.push_back(o - 1);
+      if (ox + 1 < w && gp[o + 1] == 255) gp[o + 1] = 128, queue.push_back(o + 1);
+      if (oy > 0 && gp[o - w] == 255) gp[o - w] = 128, queue.push_back(o - w);
+      if (oy + 1 < h && gp[o + w] == 255) gp[o + w] = 128, queue.push_back(o + w);
+    }
   }
   cv::Mat out = mask.clone();
   int x0 = w, y0 = h, x1 = -1, y1 = -1;
@@ -257,9 +270,8 @@ MaskSlice compute_mask(const cv::Mat& rgb, const cv::Mat* ct_hu, const cv::Matx2
       const cv::Matx23d shift{1, 0, double(roi.x), 0, 1, double(roi.y)};
       const cv::Matx23d roi_to_ct = compose_affine(out_to_ct, shift);
       // Output pixels per CT pixel.
-      const double scale =
-          1.0 / std::sqrt(std::abs(out_to_ct(0, 0) * out_to_ct(1, 1) -
-                                   out_to_ct(0, 1) * out_to_ct(1, 0)));
+      const double scale = 1.0 / std::sqrt(std::abs(out_to_ct(0, 0) * out_to_ct(1, 1) -
+                                                    out_to_ct(0, 1) * out_to_ct(1, 0)));
       cv::Mat m;
       if (options.refine_gel) {
         // The CT mask is already clean (one component, no holes). Its edge band (kGelBandPx
@@ -273,8 +285,7 @@ MaskSlice compute_mask(const cv::Mat& rgb, const cv::Mat* ct_hu, const cv::Matx2
         levels.setTo(255, core);
         cv::Mat warped;
         cv::warpAffine(levels, warped, cv::Mat(roi_to_ct), roi.size(),
-                       cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_CONSTANT,
-                       cv::Scalar(0));
+                       cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_CONSTANT, cv::Scalar(0));
         cv::Mat carried(roi.size(), CV_8UC1), band(roi.size(), CV_8UC1);
         for (int y = 0; y < roi.height; ++y) {
           const std::uint8_t* in = warped.ptr<std::uint8_t>(y);
@@ -291,9 +302,9 @@ MaskSlice compute_mask(const cv::Mat& rgb, const cv::Mat* ct_hu, const cv::Matx2
         // new edge where something was removed (and only there).
         if (!removed.empty() && options.opening_px > 0) {
           const int g = options.opening_px + 1;
-          const cv::Rect box =
-              cv::Rect(removed.x - g, removed.y - g, removed.width + 2 * g, removed.height + 2 * g) &
-              cv::Rect(0, 0, roi.width, roi.height);
+          const cv::Rect box = cv::Rect(removed.x - g, removed.y - g, removed.width + 2 * g,
+                                        removed.height + 2 * g) &
+                               cv::Rect(0, 0, roi.width, roi.height);
           cv::Mat opened;
           cv::morphologyEx(m(box), opened, cv::MORPH_OPEN, disc(options.opening_px),
                            cv::Point(-1, -1), 1, cv::BORDER_REPLICATE);

@@ -219,7 +219,11 @@ double Model::body_max_b() {
 SliceParams Model::slice(int k) const {
   SliceParams s;
   s.slice = k;
-  const double t = slices_ > 1 ? double(k) / double(slices_ - 1) : 0.0;
+  // Anatomy changes per slice, not per fraction of the stack: a short stack (a few `vhp`
+  // slices) sees a slowly changing body, as a real one would, instead of the whole anatomy
+  // squeezed into a few slices (which registration would read as motion). Stacks of 24 slices
+  // or more (tiny, small, medium) span the whole model.
+  const double t = slices_ > 1 ? std::min(1.0, double(k) / double(std::max(slices_ - 1, 23))) : 0.0;
   s.t = t;
   // Smooth changes with z (the same for every seed: the seed moves the texture and the drift).
   s.a = kBodyA * (1 + 0.05 * std::sin(2 * kPi * (0.7 * t + 0.1)));

@@ -21,9 +21,12 @@ namespace {
 constexpr int kCoarseEdge = 256;      // longer edge of the coarse level, pixels
 constexpr double kAngleRange = 10.0;  // coarse rotation search: −10°..10°
 constexpr double kAngleStep = 2.5;
-constexpr int kLookBack = 4;  // edges reach back over at most 4 slices
+constexpr int kLookBack = 4;                 // edges reach back over at most 4 slices
 constexpr int kFiducialColourDistance = 40;  // RGB distance from the gel of a fiducial blob
 constexpr double kPi = 3.14159265358979323846;
+// Fine ECC stops when the correlation improves by less than this per iteration: from the
+// coarse estimate (within ~0.1 coarse px) it converges in a few iterations.
+constexpr double kFineEps = 1e-5;
 
 cv::Mat to_grey_float(const cv::Mat& slice) {
   if (slice.empty()) throw InputError("prepare_frame: empty slice");
@@ -80,12 +83,36 @@ double ecc_level(const cv::Mat& from, const cv::Mat& to, double scale, cv::Matx2
   const double rho = cv::findTransformECC(
       from, to, warp, cv::MOTION_EUCLIDEAN,
       cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, iterations, eps),
-      cv::noArray(), 5);
+      cv::noArray(), 1);  // the frames are pre-blurred (prepare_frame)
   for (int r = 0; r < 2; ++r)
     for (int c = 0; c < 3; ++c)
       ms(r, c) = warp.at<float>(r, c);
   m = unscale_affine(ms, scale);
   return rho;
+}
+
+// Step 3 of estimate_pair: ECC at ecc_scale from `m` (full-resolution matrix of `start`).
+// On success sets est.relative, est.quality (the correlation) and est.ecc_ok; a refinement that
+// moves more than 4 coarse pixels from `start` has diverged and counts as a failure.
+bool refine_fine(const RegisterFrame& from, const RegisterFrame& to, const RegisterOptions& options,
+                 const Rigid& start, cv::Matx23d m, PairEstimate& est) {
+  const cv::Point2d centre = image_centre(from.full_size);
+  try {
+    const double rho = ecc_level(from.fine, to.fine, from.fine_scale, m,
+                                 std::max(1, options.ecc_iterations), kFineEps);
+    const Rigid refined = rigid_from_matrix(m, centre);
+    const Rigid diff{refined.rotation_deg - start.rotation_deg, refined.dx_px - start.dx_px,
+                     refined.dy_px - start.dy_px};
+    if (std::isfinite(rho) && rigid_motion_px(diff, from.full_size) < 4.0 / from.coarse_scale) {
+      est.relative = refined;
+      est.quality = std::clamp(rho, 0.0, 1.0);
+      est.ecc_ok = true;
+      return true;
+    }
+  } catch (const cv::Exception&) {
+    // ECC did not converge.
+  }
+  return false;
 }
 
 // ---- banded symmetric positive-definite solver (normal equations of the pair graph) ----
@@ -140,7 +167,11 @@ class BandedSpd {
 class BorderedSystem {
  public:
   BorderedSystem(int n, int band, int m)
-      : n_(n), m_(m), b_mat_(n, band), c_(std::size_t(n) * m, 0.0), d_(std::size_t(m) * m, 0.0),
+      : n_(n),
+        m_(m),
+        b_mat_(n, band),
+        c_(std::size_t(n) * m, 0.0),
+        d_(std::size_t(m) * m, 0.0),
         rhs_(std::size_t(n + m), 0.0) {}
   void add(int i, int j, double v) {  // symmetric entry (i, j) += v (i ≠ j: both triangles)
     if (i < n_ && j < n_) {
@@ -219,8 +250,7 @@ std::vector<cv::Point2d> find_fiducials(const cv::Mat& rgb) {
     const int x = stats.at<int>(i, cv::CC_STAT_LEFT), y = stats.at<int>(i, cv::CC_STAT_TOP);
     const int w = stats.at<int>(i, cv::CC_STAT_WIDTH), h = stats.at<int>(i, cv::CC_STAT_HEIGHT);
     const int area = stats.at<int>(i, cv::CC_STAT_AREA);
-    if (area < 12 || x < 2 || y < 2 || x + w > coarse.cols - 2 || y + h > coarse.rows - 2)
-      continue;
+    if (area < 12 || x < 2 || y < 2 || x + w > coarse.cols - 2 || y + h > coarse.rows - 2) continue;
     const double r = 0.5 * std::max(w, h);
     if (area < 0.6 * kPi * r * r || std::max(w, h) > 1.6 * std::min(w, h)) continue;
     // The blob's window on the full-resolution slice (grown by half its radius, >= 3 px).
@@ -288,6 +318,15 @@ RegisterFrame prepare_frame(const cv::Mat& slice, const RegisterOptions& options
     f.coarse_scale = double(f.coarse.cols) / slice.cols;
   }
   if (f.fine_scale < 1.0) f.fine_scale = double(f.fine.cols) / slice.cols;
+  // The 5×5 Gaussian that ECC applies to both images of every pair, done once per frame
+  // (a frame takes part in up to four pairs).
+  const bool shared = f.coarse.data == f.fine.data;
+  cv::GaussianBlur(f.fine, f.fine, cv::Size(5, 5), 0, 0);
+  if (shared) {
+    f.coarse = f.fine;
+  } else {
+    cv::GaussianBlur(f.coarse, f.coarse, cv::Size(5, 5), 0, 0);
+  }
   if (!f.black && options.method != "none") {
     if (slice.type() == CV_8UC3) {
       f.fiducials = find_fiducials(slice);
@@ -301,7 +340,7 @@ RegisterFrame prepare_frame(const cv::Mat& slice, const RegisterOptions& options
 }
 
 PairEstimate estimate_pair(const RegisterFrame& from, const RegisterFrame& to,
-                           const RegisterOptions& options) {
+                           const RegisterOptions& options, const Rigid* initial) {
   if (from.full_size != to.full_size || from.fine.size() != to.fine.size())
     throw Error(cat("estimate_pair: slices differ in size (", from.full_size.width, "x",
                     from.full_size.height, " and ", to.full_size.width, "x", to.full_size.height,
@@ -313,6 +352,13 @@ PairEstimate estimate_pair(const RegisterFrame& from, const RegisterFrame& to,
     return est;
   }
   const cv::Point2d centre = image_centre(from.full_size);
+  // A good starting estimate (a skip edge composed from two neighbour edges): the fine step
+  // alone; the full search only if that fails.
+  if (initial && options.method == "phase+ecc") {
+    PairEstimate quick;
+    if (refine_fine(from, to, options, *initial, rigid_matrix(*initial, centre), quick))
+      return quick;
+  }
   // 1. Coarse: phase correlation at a rotation φ of the `to` slice. The phase-correlation peak
   //    favours interpolated (smoother) images, so candidates are ranked by the normalised
   //    correlation of the aligned images instead.
@@ -429,23 +475,7 @@ PairEstimate estimate_pair(const RegisterFrame& from, const RegisterFrame& to,
   }
 
   // 3. ECC at ecc_scale.
-  try {
-    const double rho = ecc_level(from.fine, to.fine, from.fine_scale, m,
-                                 std::max(1, options.ecc_iterations), 1e-6);
-    Rigid refined = rigid_from_matrix(m, centre);
-    // A refinement that runs far from the coarse estimate has diverged.
-    Rigid diff{refined.rotation_deg - start.rotation_deg, refined.dx_px - start.dx_px,
-               refined.dy_px - start.dy_px};
-    const double limit = 4.0 / from.coarse_scale;
-    if (std::isfinite(rho) && rigid_motion_px(diff, from.full_size) < limit) {
-      est.relative = refined;
-      est.quality = std::clamp(rho, 0.0, 1.0);
-      est.ecc_ok = true;
-    }
-  } catch (const cv::Exception&) {
-    // ECC did not converge: keep the phase estimate, with its (low) quality.
-  }
-  if (!est.ecc_ok) est.quality = std::min(est.quality, 0.5);
+  if (!refine_fine(from, to, options, start, m, est)) est.quality = std::min(est.quality, 0.5);
   return est;
 }
 
@@ -618,34 +648,66 @@ std::vector<SlicePairs> compute_pairs(int first, int last,
       status[k] = s;
       frames[k] = std::move(f);
     }
-    // Edges of the block's slices inside [first, last).
+    // Edges of the block's slices inside [first, last): first every slice's edge from its
+    // previous usable slice (the full search), then the skip edges from the one before, each
+    // started from the composition of two measured neighbour edges where there is one.
     struct Job {
       int from, to;
     };
-    std::vector<Job> jobs;
-    for (int k = std::max(first, block); k < block_end; ++k) {
+    // The look-back slices before `first` get their nearest edges too (not returned): the
+    // skip edges into `first` start from them exactly as in an unsharded run, so shards
+    // reproduce the unsharded records.
+    std::vector<Job> nearest, skip;
+    for (int k = std::max(lo, block); k < block_end; ++k) {
       const SlicePairs& s = status[k];
       if (s.black || s.duplicate_of) continue;
       int found = 0;
-      for (int j = k - 1; j >= std::max(0, k - kLookBack) && found < 2; --j) {
+      for (int j = k - 1; j >= std::max(lo, k - kLookBack) && found < 2; --j) {
         const SlicePairs& p = status.at(j);
         if (p.black || p.duplicate_of) continue;
-        jobs.push_back({j, k});
+        if (found == 0) {
+          nearest.push_back({j, k});
+        } else if (k >= first) {
+          skip.push_back({j, k});
+        }
         ++found;
       }
     }
-    std::vector<PairEstimate> results(jobs.size());
-    parallel_for(std::int64_t(jobs.size()), threads, [&](std::int64_t i) {
-      results[std::size_t(i)] = estimate_pair(frames.at(jobs[std::size_t(i)].from),
-                                              frames.at(jobs[std::size_t(i)].to), options);
+    auto record = [&](const Job& job, const PairEstimate& r) {
+      SlicePairs& s = status[job.to];
+      const bool is_nearest = s.edges.empty();  // nearest edges are recorded first
+      s.edges.push_back({job.from, job.to, r.relative, r.ecc_ok ? 1.0 : 0.05});
+      if (is_nearest) s.quality = r.quality;
+    };
+    std::vector<PairEstimate> results(nearest.size());
+    parallel_for(std::int64_t(nearest.size()), threads, [&](std::int64_t i) {
+      const Job& job = nearest[std::size_t(i)];
+      results[std::size_t(i)] = estimate_pair(frames.at(job.from), frames.at(job.to), options);
     });
-    for (std::size_t i = 0; i < jobs.size(); ++i) {
-      SlicePairs& s = status[jobs[i].to];
-      const bool nearest = s.edges.empty();  // jobs were pushed nearest first
-      const PairEstimate& r = results[i];
-      s.edges.push_back({jobs[i].from, jobs[i].to, r.relative, r.ecc_ok ? 1.0 : 0.05});
-      if (nearest) s.quality = r.quality;
-    }
+    for (std::size_t i = 0; i < nearest.size(); ++i)
+      record(nearest[i], results[i]);
+    // The measured edge i→k and j→i (i = k's nearest usable predecessor) compose to a start.
+    auto composed = [&](const Job& job) -> std::optional<Rigid> {
+      const SlicePairs& sk = status.at(job.to);
+      if (sk.edges.empty() || sk.edges[0].weight < 1.0) return std::nullopt;
+      const int i = sk.edges[0].from;
+      auto it = status.find(i);
+      if (it == status.end() || it->second.edges.empty()) return std::nullopt;
+      const PairEdge& ji = it->second.edges[0];
+      if (ji.from != job.from || ji.weight < 1.0) return std::nullopt;
+      const cv::Point2d c = image_centre(frames.at(job.to).full_size);
+      return rigid_from_matrix(
+          compose_affine(rigid_matrix(sk.edges[0].relative, c), rigid_matrix(ji.relative, c)), c);
+    };
+    results.assign(skip.size(), PairEstimate{});
+    parallel_for(std::int64_t(skip.size()), threads, [&](std::int64_t i) {
+      const Job& job = skip[std::size_t(i)];
+      const std::optional<Rigid> start = composed(job);
+      results[std::size_t(i)] =
+          estimate_pair(frames.at(job.from), frames.at(job.to), options, start ? &*start : nullptr);
+    });
+    for (std::size_t i = 0; i < skip.size(); ++i)
+      record(skip[i], results[i]);
     for (int k = std::max(first, block); k < block_end; ++k)
       out.push_back(status[k]);
     // Keep only the look-back window of frames.
@@ -680,10 +742,11 @@ cv::Point2d apply(const cv::Matx23d& m, const cv::Point2d& p) {
 
 // Fiducial group edges (see register.h): `t` is the pair-edge-only solution. Returns the edges
 // (free nodes numbered from n) and the number of groups.
-constexpr double kTrackPx = 2.0;        // a fiducial continues a track within this distance
-constexpr int kMinTrackLength = 3;      // tracks seen on fewer slices are ignored
-constexpr double kFiducialWeight = 2.0;  // weight of a fiducial edge (a pair edge has 1)
-constexpr double kFiducialAgreePx = 3.0;  // a fit further than this from the chain is dropped
+constexpr double kTrackPx = 4.0;             // a fiducial continues a track within this distance
+constexpr int kMinTrackLength = 3;           // tracks seen on fewer slices are ignored
+constexpr double kFiducialWeight = 25.0;     // weight of a fiducial edge (a pair edge has 1)
+constexpr double kFiducialResidualPx = 1.0;  // largest misfit of one fiducial in a group fit
+constexpr double kFiducialAgreePx = 10.0;    // a fit further than this from the chain is dropped
 
 std::vector<PairEdge> fiducial_edges(const std::vector<SlicePairs>& pairs,
                                      const std::vector<Rigid>& t, cv::Size size, int* groups) {
@@ -696,7 +759,8 @@ std::vector<PairEdge> fiducial_edges(const std::vector<SlicePairs>& pairs,
     int length = 0;
   };
   std::vector<Track> tracks;
-  std::vector<std::vector<std::pair<int, cv::Point2d>>> seen(static_cast<std::size_t>(n));  // (track, p)
+  std::vector<std::vector<std::pair<int, cv::Point2d>>> seen(
+      static_cast<std::size_t>(n));  // (track, p)
   for (int k = 0; k < n; ++k) {
     if (!usable(k)) continue;
     const cv::Matx23d to_output = invert_affine(rigid_matrix(t[std::size_t(k)], c));
@@ -732,7 +796,7 @@ std::vector<PairEdge> fiducial_edges(const std::vector<SlicePairs>& pairs,
   std::vector<PairEdge> edges;
   int g = 0;
   for (const auto& [key, slices] : members) {
-    if (slices.size() < 2) continue;
+    if (int(slices.size()) < kMinTrackLength) continue;
     // The group frame: the mean output-grid position of each track over the group.
     std::vector<cv::Point2d> frame(key.size(), cv::Point2d(0, 0));
     auto point_of = [&](int k, int track) {
@@ -752,10 +816,19 @@ std::vector<PairEdge> fiducial_edges(const std::vector<SlicePairs>& pairs,
       std::vector<cv::Point2d> observed;
       for (int track : key)
         observed.push_back(point_of(k, track));
-      const Rigid fit = rigid_from_matrix(fit_rigid(frame, observed), c);
+      const cv::Matx23d fit_m = fit_rigid(frame, observed);
+      // Fiducials are rigid: one that moved against the others (debris, a mismatch) shows as
+      // a residual of the fit; such a slice gets no fiducial edge.
+      double residual = 0.0;
+      for (std::size_t i = 0; i < frame.size(); ++i) {
+        const cv::Point2d d = apply(fit_m, frame[i]) - observed[i];
+        residual = std::max(residual, std::hypot(d.x, d.y));
+      }
+      if (residual > kFiducialResidualPx) continue;
+      const Rigid fit = rigid_from_matrix(fit_m, c);
       // Agreement with the pair chain (the group frame is close to the output grid).
-      const cv::Matx23d diff = compose_affine(rigid_matrix(fit, c),
-                                              invert_affine(rigid_matrix(t[std::size_t(k)], c)));
+      const cv::Matx23d diff =
+          compose_affine(rigid_matrix(fit, c), invert_affine(rigid_matrix(t[std::size_t(k)], c)));
       if (rigid_motion_px(rigid_from_matrix(diff, c), size) > kFiducialAgreePx) continue;
       group.push_back({n + g, k, fit, kFiducialWeight});
     }

@@ -161,7 +161,9 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
   if (!reg.enabled) reg.method = "none";
   if (reg.method != "phase+ecc" && reg.method != "phase" && reg.method != "none")
     throw ConfigError(cat(config.path, ": register.method: unknown method '", reg.method, "'"));
-  StageRun run(config, "register", n, options, {"rgb", "register", "ct", "mask.hu_threshold", "mask.gel_colour", "mask.gel_distance"});
+  StageRun run(
+      config, "register", n, options,
+      {"rgb", "register", "ct", "mask.hu_threshold", "mask.gel_colour", "mask.gel_distance"});
   OpenCvThreads opencv_threads(run.threads() > 1 ? 1 : cv::getNumThreads());
   const SliceRange range = run.range();
   const auto t0 = std::chrono::steady_clock::now();
@@ -181,8 +183,14 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
   std::atomic<std::uint64_t> bytes{0};
   int pairs_computed = 0;
   if (first_missing <= last_missing) {
+    // Every slice must have the first slice's size (issue 7: a slice replaced between runs).
+    const cv::Size stack_size = read_slice(files[0].path, config.rgb.raw).size();
     auto frame = [&](int k) {
       cv::Mat slice = read_slice(files[std::size_t(k)].path, config.rgb.raw);
+      if (slice.size() != stack_size)
+        throw InputError(cat(files[std::size_t(k)].path, ": slice is ", slice.cols, "x", slice.rows,
+                             ", the stack (", files[0].path, ") is ", stack_size.width, "x",
+                             stack_size.height));
       bytes += slice.total() * slice.elemSize();
       return prepare_frame(slice, reg);
     };
@@ -296,7 +304,7 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
         run.skip(k);
         return;
       }
-      cv::Mat observed = read_slice(files[std::size_t(k)].path, config.rgb.raw);
+      cv::Mat observed = to_rgb8(read_slice(files[std::size_t(k)].path, config.rgb.raw));
       if (observed.cols != st->width || observed.rows != st->height)
         throw InputError(cat(files[std::size_t(k)].path, ": slice is ", observed.cols, "x",
                              observed.rows, ", the stack is ", st->width, "x", st->height));

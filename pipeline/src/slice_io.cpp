@@ -7,6 +7,7 @@
 #include <cctype>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <system_error>
 
 #include "vispack/common/atomic_file.h"
@@ -93,12 +94,49 @@ cv::Mat read_raw(const std::string& path, const RawLayout& raw, std::uint64_t fi
   return image;
 }
 
+// OpenImageIO error texts span several lines ("Read error...\nPNG library error"); errors are
+// one line (issue 7), so the lines are joined with "; ".
+std::string one_line(std::string text) {
+  while (!text.empty() && (text.back() == '\n' || text.back() == '\r'))
+    text.pop_back();
+  std::string out;
+  for (char c : text) {
+    if (c == '\n') {
+      out += "; ";
+    } else if (c != '\r') {
+      out += c;
+    }
+  }
+  return out;
+}
+
+// A PNG must hold its chunks up to IEND within the file. Checked before libpng sees the file:
+// libpng reports a truncated stream by printing "libpng error: ..." to stderr itself, which
+// would break the one-line error rule (issue 7). Reads 8 bytes per chunk.
+void check_png_complete(const std::string& path, std::uint64_t size) {
+  std::ifstream in(path, std::ios::binary);
+  unsigned char head[8];
+  if (!in.read(reinterpret_cast<char*>(head), 8)) return;
+  static const unsigned char kSignature[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
+  if (std::memcmp(head, kSignature, 8) != 0) return;  // not a PNG
+  std::uint64_t at = 8;
+  while (at + 12 <= size) {
+    in.seekg(std::streamoff(at));
+    if (!in.read(reinterpret_cast<char*>(head), 8)) break;
+    const std::uint64_t length = (std::uint64_t(head[0]) << 24) | (std::uint64_t(head[1]) << 16) |
+                                 (std::uint64_t(head[2]) << 8) | head[3];
+    if (std::memcmp(head + 4, "IEND", 4) == 0) return;
+    at += 12 + length;
+  }
+  throw InputError(cat(path, ": PNG is truncated (", size, " bytes, chunks end without IEND)"));
+}
+
 cv::Mat read_oiio(const std::string& path) {
   OIIO::ImageSpec config;
   config.attribute("oiio:UnassociatedAlpha", 1);  // keep colour as stored next to an alpha
   auto input = OIIO::ImageInput::open(path, &config);
   if (!input) {
-    std::string why = OIIO::geterror();
+    std::string why = one_line(OIIO::geterror());
     if (why.empty()) why = "unknown image format";
     throw InputError(cat(path, ": cannot read image: ", why));
   }
@@ -122,13 +160,13 @@ cv::Mat read_oiio(const std::string& path) {
   cv::Mat image(spec.height, spec.width, CV_MAKETYPE(eight_bit ? CV_8U : CV_16U, channels));
   const bool ok = input->read_image(0, 0, 0, channels, want, image.data);
   if (!ok) {
-    std::string why = input->geterror();
+    std::string why = one_line(input->geterror());
     if (why.empty()) why = "read failed";
     throw InputError(cat(path, ": cannot read image (truncated or corrupt?): ", why));
   }
   // Some decoders report a truncated stream only through the error buffer.
   if (input->has_error()) {
-    throw InputError(cat(path, ": image is truncated or corrupt: ", input->geterror()));
+    throw InputError(cat(path, ": image is truncated or corrupt: ", one_line(input->geterror())));
   }
   input->close();
   return image;
@@ -204,6 +242,7 @@ cv::Mat read_slice(const std::string& path, const std::optional<RawLayout>& raw)
   if (ec) throw InputError(cat(path, ": cannot read slice: ", ec.message()));
   if (size == 0) throw InputError(cat(path, ": slice file is empty (0 bytes)"));
   if (raw) return read_raw(path, *raw, size);
+  check_png_complete(path, size);
   return read_oiio(path);
 }
 
@@ -254,7 +293,7 @@ void write_image(const std::string& path, const cv::Mat& image, int jpeg_quality
   }
 
   auto output = OIIO::ImageOutput::create(format);
-  if (!output) throw IoError(cat(path, ": cannot write image: ", OIIO::geterror()));
+  if (!output) throw IoError(cat(path, ": cannot write image: ", one_line(OIIO::geterror())));
   std::vector<unsigned char> buffer;
   OIIO::Filesystem::IOVecOutput proxy(buffer);
   if (!output->supports("ioproxy")) {
@@ -262,10 +301,10 @@ void write_image(const std::string& path, const cv::Mat& image, int jpeg_quality
         cat(path, ": cannot write image: the ", format, " writer cannot write to memory"));
   }
   if (!output->set_ioproxy(&proxy) || !output->open(path, spec, OIIO::ImageOutput::Create)) {
-    throw IoError(cat(path, ": cannot write image: ", output->geterror()));
+    throw IoError(cat(path, ": cannot write image: ", one_line(output->geterror())));
   }
   if (!output->write_image(spec.format, pixels.data) || !output->close()) {
-    throw IoError(cat(path, ": cannot write image: ", output->geterror()));
+    throw IoError(cat(path, ": cannot write image: ", one_line(output->geterror())));
   }
   write_file_atomic(path, buffer.data(), buffer.size());
 }

@@ -104,7 +104,27 @@ std::string labels_path(const Config& config, int index) {
 }
 
 std::vector<SliceFile> stack_slices(const Config& config) {
-  return list_slices(config.rgb);
+  std::vector<SliceFile> files = list_slices(config.rgb);
+  if (config.ct) {
+    // CT slice k + slice_offset lies on colour slice k: matched by position, so a CT slice
+    // missing inside the CT stack would shift every later one (issue 7). The step is the
+    // smallest difference between consecutive CT numbers (1 for ct_0000, ct_0001, ...).
+    const std::vector<SliceFile> ct = list_slices(*config.ct);
+    int step = 0;
+    for (std::size_t i = 1; i < ct.size(); ++i) {
+      const int d = ct[i].number - ct[i - 1].number;
+      if (step == 0 || d < step) step = d;
+    }
+    for (std::size_t i = 1; i < ct.size(); ++i) {
+      if (ct[i].number - ct[i - 1].number > step) {
+        throw InputError(cat(config.ct->dir, ": CT slice ", ct[i - 1].number + step,
+                             " is missing (", fs::path(ct[i - 1].path).filename().string(),
+                             " is followed by ", fs::path(ct[i].path).filename().string(),
+                             "); CT slices are matched to colour slices by position"));
+      }
+    }
+  }
+  return files;
 }
 
 // ---- transforms.json ----

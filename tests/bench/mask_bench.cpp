@@ -9,11 +9,12 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <ctime>
 #include <string>
 #include <vector>
 
-#include <opencv2/core/utility.hpp>
 #include <nlohmann/json.hpp>
+#include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "vispack/common/atomic_file.h"
@@ -55,15 +56,17 @@ int main(int argc, char** argv) {
   cv::Mat ct(512, 512, CV_32F, cv::Scalar(-1000));
   cv::ellipse(ct, {256, 256}, {200, 120}, 0, 0, 360, cv::Scalar(40), -1);
   vp::MaskOptions options;
-  std::printf("| threads | method | ms/slice | IoU |\n|---|---|---|---|\n");
+  std::printf("| threads | method | ms/slice (wall × threads) | CPU ms/slice | IoU |\n");
+  std::printf("|---|---|---|---|---|\n");
   for (int threads : {1, 2}) {
     cv::setNumThreads(1);
     for (int method = 0; method < (json_out.empty() ? 2 : 3); ++method) {
       std::vector<cv::Mat> out(static_cast<std::size_t>(slices));
       vp::MaskOptions mo = options;
       mo.refine_gel = method != 2;
-      std::vector<double> times;
+      std::vector<double> times, cpu;
       for (int r = 0; r < reps; ++r) {
+        const std::clock_t c0 = std::clock();  // process CPU time, all threads
         const auto t0 = std::chrono::steady_clock::now();
         vispack::parallel_for(slices, threads, [&](std::int64_t i) {
           if (method == 0) {
@@ -76,25 +79,30 @@ int main(int argc, char** argv) {
         });
         times.push_back(
             std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+        cpu.push_back(double(std::clock() - c0) / CLOCKS_PER_SEC);
       }
       std::sort(times.begin(), times.end());
+      std::sort(cpu.begin(), cpu.end());
       const double seconds = times[times.size() / 2];
       const cv::Mat& m = out[0];
       const double iou = double(cv::countNonZero(m & truth)) / cv::countNonZero(m | truth);
       const char* name = method == 0   ? "colour threshold + opening (baseline)"
                          : method == 1 ? "CT mask + gel refinement"
                                        : "CT mask, no gel refinement";
-      std::printf("| %d | %s | %.1f | %.4f |\n", threads, name,
-                  1000.0 * seconds / slices * threads, iou);
+      std::printf("| %d | %s | %.1f | %.1f | %.4f |\n", threads, name,
+                  1000.0 * seconds / slices * threads, 1000.0 * cpu[cpu.size() / 2] / slices, iou);
       rows.push_back({{"threads", threads},
                       {"method", name},
                       {"baseline", method == 0},
                       {"ms_per_slice_per_thread", 1000.0 * seconds / slices * threads},
                       {"ms_per_slice_wall", 1000.0 * seconds / slices},
+                      {"cpu_ms_per_slice", 1000.0 * cpu[cpu.size() / 2] / slices},
                       {"iou", iou}});
     }
   }
-  std::printf("(ms/slice is per thread: wall time × threads / slices)\n");
+  std::printf(
+      "(wall × threads: wall time × threads / slices, inflated by other processes on a loaded\n"
+      " machine; CPU: process CPU time / slices, what the work itself costs)\n");
   if (!json_out.empty())
     vispack::write_file_atomic(json_out, nlohmann::json{{"width", size.width},
                                                         {"height", size.height},

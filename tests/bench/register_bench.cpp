@@ -1,6 +1,8 @@
-// Registration throughput at the Visible Human size (2048×1216): time per slice pair (frame
-// preparation + phase correlation + ECC at ecc_scale) on 1 and 2 threads, with the error
-// against a known synthetic motion. Prints a table (docs/BENCHMARKS.md "## Pipeline").
+// Registration throughput at the Visible Human size (2048×1216), on 1 and 2 threads: time per
+// slice pair (frame preparation + phase correlation + ECC at ecc_scale) with the error against a
+// known synthetic motion, and time per slice of the stage's work on a drifting stack (each
+// slice prepared once and registered against its two predecessors, compute_pairs) with the
+// chained error. Wall and CPU time. Prints tables (docs/BENCHMARKS.md "## Pipeline").
 //   build/bin/register_bench [--slices N]
 // Phantom mode (scripts/bench.sh): registers consecutive slice pairs of a vispack-phantom folder
 // with every method and ecc_scale offered, one thread, and writes the estimated and true pair
@@ -13,6 +15,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <ctime>
 #include <fstream>
 #include <random>
 #include <string>
@@ -67,10 +70,11 @@ void write_mhd(const std::string& stem, const cv::Mat& grey) {
   const std::string raw_name = stem.substr(stem.find_last_of('/') + 1) + ".raw";
   vispack::write_file_atomic(stem + ".raw", grey.data, grey.total());
   vispack::write_file_atomic(
-      stem + ".mhd", "ObjectType = Image\nNDims = 2\nBinaryData = True\nBinaryDataByteOrderMSB = "
-                     "False\nElementSpacing = 1 1\nOffset = 0 0\nDimSize = " +
-                         std::to_string(grey.cols) + " " + std::to_string(grey.rows) +
-                         "\nElementType = MET_UCHAR\nElementDataFile = " + raw_name + "\n");
+      stem + ".mhd",
+      "ObjectType = Image\nNDims = 2\nBinaryData = True\nBinaryDataByteOrderMSB = "
+      "False\nElementSpacing = 1 1\nOffset = 0 0\nDimSize = " +
+          std::to_string(grey.cols) + " " + std::to_string(grey.rows) +
+          "\nElementType = MET_UCHAR\nElementDataFile = " + raw_name + "\n");
 }
 
 // Phantom mode: see the top of the file.
@@ -82,7 +86,8 @@ int run_phantom(const std::string& dir, int max_pairs, int reps, const std::stri
   const auto& slices = truth.at("slices");
   auto usable = [&](std::size_t k) {
     const auto& s = slices[k];
-    return !s.at("black").get<bool>() && s.at("duplicate_of").is_null() && !s.at("jump").get<bool>();
+    return !s.at("black").get<bool>() && s.at("duplicate_of").is_null() &&
+           !s.at("jump").get<bool>();
   };
   auto load = [&](std::size_t k) {
     const std::string path = dir + "/rgb/" + slices[k].at("file").get<std::string>();
@@ -110,8 +115,9 @@ int run_phantom(const std::string& dir, int max_pairs, int reps, const std::stri
     to.push_back(load(pairs[i].second));
     const cv::Point2d c = vp::image_centre(from.back().size());
     // Truth: T_k = relative ∘ T_j, so relative = T_k ∘ T_j^-1 (observed j -> observed k).
-    const cv::Matx23d rel = vp::compose_affine(vp::rigid_matrix(rigid(pairs[i].second), c),
-                                               vp::invert_affine(vp::rigid_matrix(rigid(pairs[i].first), c)));
+    const cv::Matx23d rel =
+        vp::compose_affine(vp::rigid_matrix(rigid(pairs[i].second), c),
+                           vp::invert_affine(vp::rigid_matrix(rigid(pairs[i].first), c)));
     jp.push_back({{"from", pairs[i].first}, {"to", pairs[i].second}, {"truth", matrix_json(rel)}});
     if (!dump.empty()) {
       cv::Mat g;
@@ -136,9 +142,10 @@ int run_phantom(const std::string& dir, int max_pairs, int reps, const std::stri
     options.method = st.method;
     options.ecc_scale = st.ecc_scale;
     nlohmann::json mats = nlohmann::json::array();
-    std::vector<double> times;
+    std::vector<double> times, cpu;
     for (int r = 0; r < reps; ++r) {
       // Per pair: both frames prepared and the pair estimated (elastix also reads both images).
+      const std::clock_t c0 = std::clock();  // process CPU time: steadier on a loaded machine
       const auto t0 = std::chrono::steady_clock::now();
       std::vector<vp::PairEstimate> est;
       for (std::size_t i = 0; i < pairs.size(); ++i)
@@ -146,12 +153,16 @@ int run_phantom(const std::string& dir, int max_pairs, int reps, const std::stri
                                         vp::prepare_frame(to[i], options), options));
       times.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() /
                       double(pairs.size()));
+      cpu.push_back(double(std::clock() - c0) / CLOCKS_PER_SEC / double(pairs.size()));
       if (r == 0)
         for (std::size_t i = 0; i < est.size(); ++i)
-          mats.push_back(matrix_json(vp::rigid_matrix(est[i].relative, vp::image_centre(from[i].size()))));
+          mats.push_back(
+              matrix_json(vp::rigid_matrix(est[i].relative, vp::image_centre(from[i].size()))));
     }
     std::sort(times.begin(), times.end());
+    std::sort(cpu.begin(), cpu.end());
     results.push_back({{"method", st.method},
+                       {"cpu_seconds_per_pair", cpu[cpu.size() / 2]},
                        {"ecc_scale", std::string(st.method) == "phase" ? 0.0 : st.ecc_scale},
                        {"seconds_per_pair", times[times.size() / 2]},
                        {"times", times},
@@ -204,24 +215,28 @@ int main(int argc, char** argv) {
                    size, cv::INTER_LINEAR, cv::BORDER_REPLICATE);
   }
   vp::RegisterOptions options;
-  std::printf("| threads | method | ms/slice (prepare + pair) | RMS error px | max error px |\n");
-  std::printf("|---|---|---|---|---|\n");
+  // 1. Pairs: each slice k >= 1 against slice 0 (the relative motion is truth[k]).
+  std::printf(
+      "| threads | method | ms/pair (prepare + pair), wall | CPU ms/pair | RMS error px | "
+      "max error px |\n");
+  std::printf("|---|---|---|---|---|---|\n");
   for (const char* method : {"phase", "phase+ecc"}) {
     for (int threads : {1, 2}) {
       cv::setNumThreads(1);
       options.method = method;
+      const std::clock_t c0 = std::clock();  // process CPU time, all threads
       const auto t0 = std::chrono::steady_clock::now();
       std::vector<vp::RegisterFrame> frames(truth.size());
       std::vector<vp::PairEstimate> est(static_cast<std::size_t>(pairs));
       vispack::parallel_for(std::int64_t(truth.size()), threads, [&](std::int64_t k) {
         frames[std::size_t(k)] = vp::prepare_frame(slices[std::size_t(k)], options);
       });
-      // Each slice k >= 1 against slice 0 (the relative motion is truth[k]).
       vispack::parallel_for(pairs, threads, [&](std::int64_t i) {
         est[std::size_t(i)] = vp::estimate_pair(frames[0], frames[std::size_t(i) + 1], options);
       });
       const double seconds =
           std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      const double cpu = double(std::clock() - c0) / CLOCKS_PER_SEC;
       double sum2 = 0, worst = 0;
       for (int i = 0; i < pairs; ++i) {
         const auto& r = est[std::size_t(i)].relative;
@@ -232,9 +247,58 @@ int main(int argc, char** argv) {
         sum2 += e * e;
         worst = std::max(worst, e);
       }
-      std::printf("| %d | %s | %.1f | %.3f | %.3f |\n", threads, method, 1000.0 * seconds / pairs,
-                  std::sqrt(sum2 / pairs), worst);
+      std::printf("| %d | %s | %.1f | %.1f | %.3f | %.3f |\n", threads, method,
+                  1000.0 * seconds / pairs, 1000.0 * cpu / pairs, std::sqrt(sum2 / pairs), worst);
     }
   }
+  // 2. The stage's work per slice: a drifting stack (random walk, σ 0.3 px and 0.05° per
+  //    slice) with two fiducial tubes in the gel, every slice prepared once and registered
+  //    against its two predecessors (compute_pairs), then chained (chain_transforms).
+  const int n = pairs + 1;
+  std::vector<vp::Rigid> walk(static_cast<std::size_t>(n));
+  std::vector<cv::Mat> stack(static_cast<std::size_t>(n));
+  cv::Mat tubes = base.clone();
+  cv::circle(tubes, {150, 150}, 45, cv::Scalar(72, 176, 84), -1, cv::LINE_AA);
+  cv::circle(tubes, {size.width - 150, size.height - 150}, 45, cv::Scalar(72, 176, 84), -1,
+             cv::LINE_AA);
+  std::normal_distribution<double> step(0.0, 1.0);
+  for (int k = 0; k < n; ++k) {
+    if (k > 0)
+      walk[std::size_t(k)] = {walk[std::size_t(k) - 1].rotation_deg + 0.05 * step(rng),
+                              walk[std::size_t(k) - 1].dx_px + 0.3 * step(rng),
+                              walk[std::size_t(k) - 1].dy_px + 0.3 * step(rng)};
+    cv::warpAffine(tubes, stack[std::size_t(k)],
+                   cv::Mat(vp::rigid_matrix(walk[std::size_t(k)], vp::image_centre(size))), size,
+                   cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+  }
+  std::printf(
+      "\n| threads | stack of %d slices, phase+ecc | ms/slice (prepare + 2 pairs), wall | "
+      "CPU ms/slice | chained RMS error px (centre) |\n",
+      n);
+  std::printf("|---|---|---|---|---|\n");
+  options.method = "phase+ecc";
+  for (int threads : {1, 2}) {
+    cv::setNumThreads(1);
+    const std::clock_t c0 = std::clock();
+    const auto t0 = std::chrono::steady_clock::now();
+    const std::vector<vp::SlicePairs> records = vp::compute_pairs(
+        0, n, [&](int k) { return vp::prepare_frame(stack[std::size_t(k)], options); }, options,
+        threads);
+    const double seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    const double cpu = double(std::clock() - c0) / CLOCKS_PER_SEC;
+    const auto chained = vp::chain_transforms(records, size, options.jump_px);
+    double sum2 = 0;
+    for (int k = 0; k < n; ++k) {
+      const auto& t = chained[std::size_t(k)];
+      const auto& w = walk[std::size_t(k)];
+      sum2 += std::pow(t.dx_px - w.dx_px, 2) + std::pow(t.dy_px - w.dy_px, 2);
+    }
+    std::printf("| %d | compute_pairs | %.1f | %.1f | %.3f |\n", threads, 1000.0 * seconds / n,
+                1000.0 * cpu / n, std::sqrt(sum2 / n));
+  }
+  std::printf(
+      "(wall: elapsed time, inflated by other processes on a loaded machine; CPU: process\n"
+      " CPU time of all threads)\n");
   return 0;
 }

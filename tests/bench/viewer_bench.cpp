@@ -3,6 +3,10 @@
 // gets (llvmpipe here). Without --file it writes a medium-sized synthetic volume (the size of
 // the `medium` phantom, 512x384x160, bricks of 64) to a temporary file first.
 // Prints a Markdown table for docs/BENCHMARKS.md.
+// --json OUT also writes every row plus the camera (world mm) and the level-0 box, so that a peer
+// renderer (scripts/bench/vtk_peer.py) can render the same view; --spv LIST sets the slices per
+// voxel (default 0.5,1,2,4); with --json, colour frames of the coarser levels (levels of detail,
+// 1 slice per voxel) are timed against the same level-0 reference; --ref-png OUT saves it.
 #include <unistd.h>
 
 #include <chrono>
@@ -10,8 +14,12 @@
 #include <cstdlib>
 #include <filesystem>
 #include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
 
 #include "../render/synthetic_volume.h"
+#include "vispack/common/atomic_file.h"
 #include "vispack/common/cli.h"
 #include "vispack/format/writer.h"
 #include "vispack/render/reference.h"
@@ -33,7 +41,21 @@ int main(int argc, char** argv) {
     auto file = args.option("--file", "X.vpk", "packed volume (default: synthetic medium)");
     auto size_opt = args.option_int("--size", "N", "frame size (default 256)");
     std::string dims_text = args.option("--dims", "X,Y,Z", "synthetic dims", "512,384,160");
+    auto json_out = args.option("--json", "OUT", "also write the results as JSON");
+    std::string spv_text =
+        args.option("--spv", "LIST", "slices per voxel, comma separated", "0.5,1,2,4");
+    auto ref_png = args.option("--ref-png", "OUT", "save the colour CPU reference frame");
     args.done();
+    std::vector<double> spv;
+    for (std::size_t pos = 0; pos < spv_text.size();) {
+      std::size_t end = spv_text.find(',', pos);
+      if (end == std::string::npos) end = spv_text.size();
+      const double v = std::atof(spv_text.substr(pos, end - pos).c_str());
+      if (!(v > 0)) throw UsageError("--spv must list positive numbers");
+      spv.push_back(v);
+      pos = end + 1;
+    }
+    nlohmann::json out;
     std::setvbuf(stdout, nullptr, _IOLBF, 0);  // lines appear as they are measured
     int size = int(size_opt.value_or(256));
     std::string path;
@@ -93,6 +115,23 @@ int main(int argc, char** argv) {
                 size, size, first_frame);
     std::printf("| upload level 0 (%lld bricks, %.0f MB) | %.2f s, %.0f MB/s |\n",
                 (long long)up.bricks, up.bytes / 1e6, up.seconds, up.bytes / 1e6 / up.seconds);
+    auto vec = [](const Vec3& v) { return nlohmann::json{v.x, v.y, v.z}; };
+    out["gl"] = context.description();
+    out["dims"] = g0.dims;
+    out["spacing_mm"] = vec(g0.spacing_mm);
+    out["box_lo"] = vec(g0.box().lo);
+    out["box_hi"] = vec(g0.box().hi);
+    out["levels"] = source->level_count();
+    out["size"] = size;
+    out["first_frame_s"] = first_frame;
+    out["upload_s"] = up.seconds;
+    out["upload_mb"] = up.bytes / 1e6;
+    out["camera"] = {
+        {"eye", vec(cam.eye)},        {"forward", vec(cam.forward)},      {"up", vec(cam.up)},
+        {"fov_y_deg", cam.fov_y_deg}, {"orthographic", cam.orthographic}, {"near_mm", cam.near_mm},
+        {"far_mm", cam.far_mm}};
+    out["opacity"] = params.opacity;
+    nlohmann::json rows = nlohmann::json::array();
 
     VolumeData data = load_level(*source, 0);
     std::printf(
@@ -106,7 +145,8 @@ int main(int argc, char** argv) {
       double t_ref = now();
       Image8 ref = to_rgba8(render_reference(data, cam, p, {8}));
       t_ref = now() - t_ref;
-      for (double s : {0.5, 1.0, 2.0, 4.0}) {
+      if (ref_png && m == Mode::kColour) write_png(*ref_png, ref);
+      for (double s : spv) {
         p.slices_per_voxel = s;
         viewer::FrameInfo info = renderer.render(fine, cam, p);  // warm-up
         renderer.read_rgba8();
@@ -118,11 +158,46 @@ int main(int argc, char** argv) {
           img = renderer.read_rgba8();
         }
         double ms = (now() - t0) / reps * 1e3;
+        const double psnr = psnr_rgb(img, ref);
         std::printf("| %s | %.1f | %lld | %.0f | %.1f |\n", mode_name(m), s, (long long)info.slices,
-                    ms, psnr_rgb(img, ref));
+                    ms, psnr);
+        rows.push_back({{"mode", mode_name(m)},
+                        {"level", 0},
+                        {"slices_per_voxel", s},
+                        {"slices", info.slices},
+                        {"ms", ms},
+                        {"psnr_db", psnr}});
+      }
+      // Levels of detail: the coarser levels' textures, 1 slice per voxel of that level.
+      for (int level = 1; json_out && m == Mode::kColour && level < source->level_count();
+           ++level) {
+        viewer::VolumeTextures lod;
+        lod.upload(*source, level, 0);
+        p.slices_per_voxel = 1.0;
+        viewer::FrameInfo info = renderer.render(lod, cam, p);  // warm-up
+        renderer.read_rgba8();
+        const int reps = 2;
+        double t0 = now();
+        Image8 img;
+        for (int r = 0; r < reps; ++r) {
+          renderer.render(lod, cam, p);
+          img = renderer.read_rgba8();
+        }
+        const double ms = (now() - t0) / reps * 1e3;
+        const double psnr = psnr_rgb(img, ref);
+        std::printf("| %s, level %d | 1.0 | %lld | %.0f | %.1f |\n", mode_name(m), level,
+                    (long long)info.slices, ms, psnr);
+        rows.push_back({{"mode", mode_name(m)},
+                        {"level", level},
+                        {"slices_per_voxel", 1.0},
+                        {"slices", info.slices},
+                        {"ms", ms},
+                        {"psnr_db", psnr}});
       }
       std::fprintf(stderr, "(reference %s: %.1f s)\n", mode_name(m), t_ref);
     }
+    out["rows"] = rows;
+    if (json_out) write_file_atomic(*json_out, out.dump(1));
     if (!tmp.empty()) std::filesystem::remove_all(tmp);
     return 0;
   });

@@ -256,6 +256,57 @@ TEST(Determinism, SameInputSameBytesWhateverThreads) {
   EXPECT_EQ(ba.size() % 1, 0u);
 }
 
+// The writer reduces full 2x2x2 blocks on fast paths (shift for means, equal-alpha shortcut,
+// eight-equal-IDs shortcut) and the edges on the reduce_* functions: both must agree exactly
+// with the naive reference on arbitrary values, not only the smooth phantom. Random alphas mix
+// 0, 255 and any value; CT spans the whole int16 range; labels are random IDs (uint8 and
+// uint16 stored types), with runs so that both majority paths are taken.
+TEST(Reduction, FastPathsAgreeWithReferenceOnNoise) {
+  for (std::uint32_t max_label : {40u, 400u}) {
+    Volume v = make_volume({37, 22, 19}, 5, max_label);
+    std::mt19937 rng(max_label);
+    for (std::size_t i = 0; i < v.data[0].size(); i += 4) {
+      for (int c = 0; c < 4; ++c)
+        v.data[0][i + std::size_t(c)] = std::uint8_t(rng());
+      const int pick = int(rng() % 4);
+      if (pick < 2) v.data[0][i + 3] = pick == 0 ? 0 : 255;
+    }
+    for (auto& b : v.data[1])
+      b = std::uint8_t(rng());
+    for (std::size_t i = 0; i + 1 < v.data[2].size(); i += 2) {
+      const std::uint16_t id =
+          rng() % 3 == 0 ? 0 : std::uint16_t(v.label_table[rng() % v.label_table.size()].id);
+      std::memcpy(&v.data[2][i], &id, 2);
+      if (i + 3 < v.data[2].size() && rng() % 2) {  // a run of two equal IDs
+        std::memcpy(&v.data[2][i + 2], &id, 2);
+        i += 2;
+      }
+    }
+    std::string path = temp_path("noise.vpk");
+    write(path, v, options_for(v, 8, 3));
+    check_all_levels(path, v);
+  }
+}
+
+// A writer abandoned with slabs still being compressed joins its threads and leaves nothing.
+TEST(Writer, AbandonedWithSlabsInFlightLeavesNoFile) {
+  Volume v = make_volume({40, 30, 50}, 3);
+  std::string path = temp_path("abandoned.vpk");
+  {
+    Writer w(path, options_for(v, 8, 3));
+    const std::size_t plane = std::size_t(40 * 30);
+    for (std::int64_t z = 0; z < 33; ++z) {
+      w.append_slice({v.data[0].data() + plane * 4 * std::size_t(z),
+                      v.data[1].data() + plane * 2 * std::size_t(z),
+                      v.data[2].data() + plane * 2 * std::size_t(z)});
+    }
+    EXPECT_EQ(w.slices_written(), 33);
+  }
+  EXPECT_FALSE(std::filesystem::exists(path));
+  for (const auto& entry : std::filesystem::directory_iterator(temp_dir()))
+    EXPECT_EQ(entry.path().string().find("abandoned.vpk"), std::string::npos) << entry.path();
+}
+
 TEST(Writer, RejectsBadOptionsAndMisuse) {
   Volume v = make_volume({8, 8, 4}, 1);
   WriterOptions o = options_for(v, 8);

@@ -19,7 +19,8 @@ namespace {
 const std::string& layout_dir() {
   static const std::string dir = [] {
     std::string root = vispack_fuzz_scratch_dir() + "/project";
-    for (const char* sub : {"rgb", "ct", "seg"}) vispack::make_directories(root + "/" + sub);
+    for (const char* sub : {"rgb", "ct", "seg"})
+      vispack::make_directories(root + "/" + sub);
     cv::Mat rgb(4, 6, CV_8UC3, cv::Scalar(20, 40, 200)), ct(3, 3, CV_16UC1, cv::Scalar(1024));
     for (int k = 0; k < 2; ++k) {
       std::string n = "000" + std::to_string(k);
@@ -63,10 +64,17 @@ void vispack_fuzz_write_seeds(const std::string& dir) {
   const char* minimal = R"({"rgb": {"dir": "rgb", "pattern": "rgb_{n}.png"}})";
   const char* raw = R"({"rgb": {"dir": "rgb", "pattern": "rgb_{n}.png",
     "raw": {"width": 6, "height": 4, "channels": 3, "layout": "planar", "bits": 8, "endian": "little", "header_bytes": 0}}})";
-  const char* wrong_type = R"({"rgb": {"dir": 5, "pattern": "rgb_{n}.png"}, "pack": {"brick_edge": "big"}})";
-  const char* unknown = R"({"rgb": {"dir": "rgb", "pattern": "rgb_{n}.png"}, "colour_magic": true})";
+  const char* wrong_type =
+      R"({"rgb": {"dir": 5, "pattern": "rgb_{n}.png"}, "pack": {"brick_edge": "big"}})";
+  const char* unknown =
+      R"({"rgb": {"dir": "rgb", "pattern": "rgb_{n}.png"}, "colour_magic": true})";
+  // Fuzzing finding (docs/RELIABILITY.md): a number too large for a double made json::parse
+  // throw out_of_range, which load_config let escape instead of a ConfigError.
+  const char* overflow = "777777E79999";
+  const char* overflow_in_key =
+      R"({"rgb": {"dir": "rgb", "pattern": "rgb_{n}.png"}, "spacing_mm": [1E99999, 1, 1]})";
   int i = 0;
-  for (const char* text : {full, minimal, raw, wrong_type, unknown}) {
+  for (const char* text : {full, minimal, raw, wrong_type, unknown, overflow, overflow_in_key}) {
     vispack_fuzz_write(dir + "/config-" + std::to_string(i++) + ".json", text, std::strlen(text));
   }
 }

@@ -72,16 +72,20 @@ struct Agreement {
   double body_fraction() const { return body ? double(body_equal) / body : 0; }
 };
 
-// Compares work/labels/labels_NNNN.png (or `slices`) with truth/labels.nrrd.
+// Compares work/labels/labels_NNNN.png (or `slices`) with truth/labels.nrrd. Skips the black
+// and the duplicated slice of a phantom with defects: their seg file shows nothing, or the
+// previous slice's anatomy, so no labels stage can recover truth there.
 Agreement compare_with_truth(const std::string& phantom, const std::vector<cv::Mat>& slices) {
   NrrdVolume truth = read_truth(phantom, "labels.nrrd");
   NrrdVolume mask = read_truth(phantom, "mask.nrrd");
+  const StackTransforms truth_t = read_transforms(phantom + "/truth/transforms.json");
   const int nx = int(truth.dims[0]), ny = int(truth.dims[1]), nz = int(truth.dims[2]);
   EXPECT_EQ(int(slices.size()), nz);
   const std::uint16_t* t = truth.as<std::uint16_t>();
   const std::uint8_t* m = mask.as<std::uint8_t>();
   Agreement a;
   for (int z = 0; z < nz && z < int(slices.size()); ++z) {
+    if (truth_t.slices[z].black || truth_t.slices[z].duplicate_of) continue;
     const cv::Mat& s = slices[z];
     EXPECT_EQ(s.cols, nx);
     EXPECT_EQ(s.rows, ny);
@@ -170,7 +174,9 @@ TEST(ColourMatcher, LargePaletteAgreesWithBruteForce) {
     auto got = m.match(std::uint8_t(r), std::uint8_t(g), std::uint8_t(b));
     ASSERT_NEAR(got.distance, d, 1e-9) << r << "," << g << "," << b;
     ASSERT_EQ(got.matched, d <= tolerance);
-    if (got.matched) ASSERT_EQ(got.id, id) << r << "," << g << "," << b;
+    if (got.matched) {
+      ASSERT_EQ(got.id, id) << r << "," << g << "," << b;
+    }
   }
   // A slice of palette colours with +-3 noise per channel (all within tolerance 24 since the
   // noise is at most sqrt(27) ~ 5.2 from the drawn colour, and the drawn colour is the nearest
@@ -427,7 +433,9 @@ TEST(SegTruth, PngMappingEqualsSegLabelsExactly) {
 // grid of each slice) get their true ID, over the whole 64-slice small phantom. Each slice must
 // also reach 99 % (a bad slice cannot hide in the average; a body cross-section of ~20k pixels
 // has ~2k boundary pixels, so 1 % is half of them). Outside the body (gel, background) only the
-// body edge can be wrong: >= 99.5 % there too.
+// body edge can be wrong: >= 99.5 % there too. Measured (seed 3): 99.67 % in the body, worst
+// slice 99.43 %, 100 % outside (98.75 % in the body before unsure matches were decided by their
+// neighbourhood, labels.cpp kConfidentDistance).
 TEST(SegTruth, JpegMappingInsideBodyAtLeast995Percent) {
   SmallPhantom& p = small_jpeg();
   ColourMatcher matcher(read_palette(p.config.seg->palette), p.config.seg->tolerance);
@@ -465,9 +473,10 @@ TEST(SegTruth, JpegMappingInsideBodyAtLeast995Percent) {
 //    model point up to sqrt(2)/2 = 0.71 px from q. So only pixels within 0.71 px of a boundary
 //    can differ: asserted zero errors at pixels whose truth 3x3 neighbourhood is one label (a
 //    boundary there is >= 1 px away). Overall: every boundary pixel is at risk, about half of
-//    them flip (the boundary falls on either side of the half-way point with equal odds); the
-//    small phantom has ~9 % of its pixels next to a boundary, measured 95.9 % equal overall and
-//    93.8 % in the body (truth mask): asserted >= 95 % and >= 92.5 %.
+//    them flip (the boundary falls on either side of the half-way point with equal odds). On the
+//    small phantom (seed 3; the black and the duplicated slice left out, compare_with_truth)
+//    measured 98.98 % equal overall and 96.85 % in the body (truth mask, where the edges are):
+//    asserted >= 98 % and >= 96 % (about one point of margin for the boundary share).
 TEST(SegTruth, ResampledLabelsExactAwayFromEdges) {
   SmallPhantom& p = small_png();
   p.run_stage_with_true_transforms();
@@ -487,8 +496,8 @@ TEST(SegTruth, ResampledLabelsExactAwayFromEdges) {
       (unsigned long long)a.interior);
   EXPECT_EQ(a.interior_wrong, 0u);
   EXPECT_GT(a.interior, a.total * 8 / 10);
-  EXPECT_GE(a.fraction(), 0.95);
-  EXPECT_GE(a.body_fraction(), 0.925);
+  EXPECT_GE(a.fraction(), 0.98);
+  EXPECT_GE(a.body_fraction(), 0.96);
 }
 
 // The JPEG segmentation through the whole labels stage (true transforms): inside the body the

@@ -78,6 +78,34 @@ TEST(Mask, GelRefinementRemovesEdgeGelAndNotchKeepsInnerGel) {
   EXPECT_EQ(colour.at<std::uint8_t>(60, 80), 255);
 }
 
+TEST(Mask, GelRefinementHalfWayLevelAndBand) {
+  // Body (180, 90, 80) in gel (40, 70, 160): distance 189. A 2-px rim of "tissue showing
+  // through the gel" at distance ~50 (above gel_distance 40, below half of 189) outside the
+  // body is gel; a gel notch 30 px deep reaches beyond a 10-px band and survives below it.
+  const cv::Vec3b gel(40, 70, 160);
+  cv::Mat rgb(120, 160, CV_8UC3, cv::Scalar(gel[0], gel[1], gel[2]));
+  cv::circle(rgb, {80, 60}, 44, cv::Scalar(76, 76, 134), -1);  // the tinted rim (distance 50)
+  cv::circle(rgb, {80, 60}, 42, cv::Scalar(180, 90, 80), -1);
+  cv::rectangle(rgb, cv::Rect(92, 57, 40, 6), cv::Scalar(gel[0], gel[1], gel[2]), -1);  // notch
+  cv::Mat mask(120, 160, CV_8U, cv::Scalar(0));
+  cv::circle(mask, {80, 60}, 45, cv::Scalar(255), -1);
+  cv::Mat inner;
+  cv::erode(mask, inner, cv::getStructuringElement(cv::MORPH_ELLIPSE, {21, 21}));
+  const cv::Mat band = mask & ~inner;  // the outer 10 px of the mask
+  cv::Rect removed;
+  cv::Mat refined =
+      vp::remove_edge_gel(mask, rgb, cv::Vec3f(gel[0], gel[1], gel[2]), 40, band, &removed);
+  EXPECT_EQ(refined.at<std::uint8_t>(60, 80 - 43), 0);    // tinted rim removed (half-way level)
+  EXPECT_EQ(refined.at<std::uint8_t>(60, 80 - 41), 255);  // tissue kept
+  EXPECT_EQ(refined.at<std::uint8_t>(60, 122), 0);        // notch inside the band removed
+  EXPECT_EQ(refined.at<std::uint8_t>(60, 100), 255);      // notch below the band kept
+  EXPECT_FALSE(removed.empty());
+  EXPECT_TRUE(removed.contains({122, 60}));
+  // Without a band the whole notch goes.
+  cv::Mat all = vp::remove_edge_gel(mask, rgb, cv::Vec3f(gel[0], gel[1], gel[2]), 40);
+  EXPECT_EQ(all.at<std::uint8_t>(60, 100), 0);
+}
+
 TEST(Mask, HuEncodingAndOverlay) {
   cv::Mat hu = (cv::Mat_<float>(1, 4) << -1024, 0, 3071, -40000);
   cv::Mat enc = vp::encode_hu16(hu);

@@ -111,8 +111,10 @@ PackedVsTruth compare_packed_with_truth(const test::TempDir& dir, const Config& 
   PackedVsTruth r;
   int compared_slices = 0;
   for (int z = 0; z < nz; ++z) {
-    // A black slice carries no colour, and its labels (a black seg) are 0: nothing to compare.
-    if (truth_t.slices[z].black) continue;
+    // A black slice carries no colour, and its labels (a black seg) are 0; a duplicated slice
+    // shows the previous slice's anatomy. Neither can agree with truth; the packed metadata
+    // lists both (test_pack).
+    if (truth_t.slices[z].black || truth_t.slices[z].duplicate_of) continue;
     ++compared_slices;
     const double gain = truth_json["slices"][z]["gain"];
     cv::Mat lab(ny, nx, CV_16UC1, t_lab.as<std::uint16_t>() + plane * z);
@@ -154,7 +156,7 @@ PackedVsTruth compare_packed_with_truth(const test::TempDir& dir, const Config& 
         if (in) ++r.lab_inner, r.lab_inner_wrong += !eq;
       }
   }
-  EXPECT_EQ(compared_slices, kSlices - 1);  // the defects put one black slice in the stack
+  EXPECT_EQ(compared_slices, kSlices - 2);  // the defects: one black, one duplicated slice
   r.finish();
   std::printf(
       "%s: pack vs truth (small, %d slices): alpha IoU %.4f; colour MAE %.2f (%.2f away from "
@@ -170,8 +172,8 @@ PackedVsTruth compare_packed_with_truth(const test::TempDir& dir, const Config& 
 
 // The tolerances, shared by both tests below.
 void expect_within_tolerances(const PackedVsTruth& r, bool check_alpha) {
-  ASSERT_GT(r.rgb_n_inner, 1000000u);
-  ASSERT_GT(r.ct_n_flat, 100000u);
+  ASSERT_GT(r.rgb_n_inner, 3u * 150000u);  // (pixels x 3 channels) away from label edges
+  ASSERT_GT(r.ct_n_flat, 50000u);          // body pixels where the CT is flat
   // Alpha: the mask goal, IoU >= 0.99 against truth/mask.nrrd.
   if (check_alpha) EXPECT_GE(r.iou(), 0.99);
   // Colour away from label edges (truth 3x3 uniform), gain divided out: what is left is the
@@ -188,19 +190,22 @@ void expect_within_tolerances(const PackedVsTruth& r, bool check_alpha) {
   // CT noise (6 HU, 0.8 * 6 = 4.8 mean absolute, lowered by interpolation) and the texture
   // (< 50 HU range by selection, averaged over a CT pixel) remain: <= 10 HU.
   EXPECT_LE(r.ct_mae_flat, 10.0);
-  // CT over the whole body: a CT pixel is 2.7 RGB pixels wide (0.9 vs 0.33 mm), so every edge
-  // between tissues (bone/soft tissue ~1000 HU, lung/soft tissue ~800 HU) is blurred over ~3 RGB
-  // pixels on either side, and the body edge against gel (-~100 vs air -1000 in the CT) too.
-  // About 15 % of body pixels lie within 1.5 CT pixels of such an edge, erring ~1/4 of the step on
-  // average: ~15 % * 200 HU = 30 HU on top of the flat error: <= 40 HU.
-  EXPECT_LE(r.ct_mae, 40.0);
+  // CT over the whole body: a CT pixel is 2.7 RGB pixels wide (0.9 vs 0.33 mm) and the scanner
+  // model blurs every tissue edge over one CT pixel, so interpolating the CT onto the colour grid
+  // smears each edge (bone/soft tissue ~1000 HU, lung/soft tissue ~800 HU, body/air) over ~3 RGB
+  // pixels; that cannot be undone. Its size: 47.3 HU measured when every stage gets the TRUE
+  // transforms (PackTruth.TrueTransformsChannelsAgreeWithTruth, seed 3), against 7.3 HU where the
+  // CT is flat. Tolerance: that floor + 15 % for the CT->RGB alignment and mask edge at their
+  // goals: <= 55 HU.
+  EXPECT_LE(r.ct_mae, 55.0);
   // Labels away from edges (truth 3x3 uniform): nearest-neighbour resampling moves a sample by
   // <= 0.71 px, registration error by <= 0.1 px more, so a pixel >= 1 px from every boundary keeps
-  // its label: at most 0.1 % wrong (thin slivers between samples). Whole body: the half-pixel
-  // nearest-neighbour loss along every edge (test_labels: 93.8 % in the body with the true
-  // transforms on the 64-slice small phantom) minus 0.5 point for the drift: >= 93 %.
+  // its label: at most 0.1 % wrong (thin slivers between samples; measured 1 of 212,190). Whole
+  // body: the half-pixel nearest-neighbour loss along every edge (97.0 % measured with the TRUE
+  // transforms, seed 3; see test_labels SegTruth.ResampledLabelsExactAwayFromEdges) less 1 point
+  // for a drift error of 0.1 px on the ~10 % of body pixels next to an edge: >= 96 %.
   EXPECT_LE(r.lab_inner_wrong_fraction, 0.001);
-  EXPECT_GE(r.lab_body_fraction, 0.93);
+  EXPECT_GE(r.lab_body_fraction, 0.96);
 }
 
 }  // namespace

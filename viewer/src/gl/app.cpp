@@ -176,6 +176,10 @@ int run_screenshot(const ViewOptions& options) {
                  seconds_since(t_open));
   }
   UploadStats up = textures.upload(*source, level, options.threads);
+  // A corrupt brick is drawn as missing (zeros) and reported; the picture is still written and
+  // the exit code stays 0 (docs/RELIABILITY.md).
+  for (const std::string& e : up.bad_brick_errors)
+    std::fprintf(stderr, "vispack-view: warning: %s; shown as missing\n", e.c_str());
   if (options.timings) {  // warm-up: llvmpipe compiles shaders at the first draw
     renderer.render(textures, camera, params);
     renderer.read_rgba8();

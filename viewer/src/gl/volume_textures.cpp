@@ -7,6 +7,7 @@
 #include <deque>
 #include <exception>
 #include <mutex>
+#include <string>
 #include <thread>
 #include <vector>
 
@@ -79,6 +80,7 @@ struct Job {
 struct Item {
   Job job;
   std::vector<std::uint8_t> data;
+  std::string bad;  // non-empty: the region's stored data is corrupt (data is all zeros)
 };
 
 }  // namespace
@@ -127,7 +129,12 @@ struct VolumeTextures::Impl {
         Item item{jobs[i], {}};
         int bpv = render::channel_bytes(item.job.channel);
         item.data.resize(std::size_t(item.job.region.voxels()) * std::size_t(bpv));
-        source->read_region(item.job.channel, level, item.job.region, item.data.data());
+        try {
+          source->read_region(item.job.channel, level, item.job.region, item.data.data());
+        } catch (const FormatError& e) {  // a corrupt brick: shown as missing, not garbage
+          std::fill(item.data.begin(), item.data.end(), std::uint8_t(0));
+          item.bad = e.what();
+        }
         if (item.job.channel == Channel::kRgba)
           render::premultiply_rgba8(item.data.data(), item.data.data(), item.job.region.voxels());
         std::unique_lock<std::mutex> lock(mutex);
@@ -245,6 +252,10 @@ bool VolumeTextures::pump(double budget_seconds) {
                     item.data.data());
     s.stats.bricks += 1;
     s.stats.bytes += std::int64_t(item.data.size());
+    if (!item.bad.empty()) {
+      s.stats.bad_bricks += 1;
+      s.stats.bad_brick_errors.push_back(std::move(item.bad));
+    }
     if (budget_seconds >= 0 &&
         std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() >
             budget_seconds) {

@@ -177,6 +177,8 @@ int run_window(const ViewOptions& options) {
     if (options.max_frames > 0 && frame >= options.max_frames) break;
     glfwPollEvents();
     if (loading && loading->pump(0.010)) {  // at most ~10 ms of uploads per frame
+      for (const std::string& e : loading->stats().bad_brick_errors)
+        std::fprintf(stderr, "vispack-view: warning: %s; shown as missing\n", e.c_str());
       current = std::move(loading);
       state.last_change = now();
     }

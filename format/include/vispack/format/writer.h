@@ -11,11 +11,16 @@
 //   for (z ...) writer.append_slice({rgba_slice, ct_slice, label_slice});
 //   writer.finish();  // the file appears complete at "out/volume.vpk", or not at all
 //
-// Memory: the writer keeps one slab of brick_edge slices per channel and per level (about
-// 4/3 of one brick row of level 0) plus the compressed bricks of one slab, whatever nz is.
-// Bricks of a slab are compressed in parallel on `threads` threads.
+// Memory: the writer keeps, per level and channel, the slab of brick_edge slices being filled
+// and the previous slab while its bricks are compressed (about 2 x 8/7 brick rows of level 0),
+// plus the compressed bricks of those slabs and one brick of scratch per thread, whatever nz
+// is.
+// Threads: `threads` persistent compression threads, started by the constructor and joined by
+// finish() or the destructor. A full slab is handed to them and compressed while the calling
+// thread fills the next slab and builds the pyramid; the calling thread also makes bricks
+// while it waits for them.
 // Determinism: the same slices and options give a byte-identical file, whatever `threads`
-// (no timestamps; bricks are written in index order of their slab).
+// (no timestamps; slabs are written in the order they fill, bricks in index order within).
 // Thread-safety: a Writer is used from one thread at a time.
 #pragma once
 

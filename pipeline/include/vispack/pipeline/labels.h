@@ -7,13 +7,16 @@
 // nearest palette colour (Euclidean RGB distance, k-d tree, cached per slice) if it lies within
 // `seg.tolerance`; a colour farther than that from every palette colour is "unmatched": it
 // is counted and its first positions are reported, or, with `seg.strict`, it is an InputError
-// naming the file, the pixel and the colour (exit code 6). In non-strict mode an unmatched pixel
-// takes, among the IDs of matched pixels in its 9x9 neighbourhood, the one whose palette colour
+// naming the file, the pixel and the colour (exit code 6). In non-strict mode an unmatched pixel,
+// and a matched one whose nearest palette colour is more than 32 away ("unsure": JPEG chroma
+// bleeding across a boundary), takes, among the IDs of the confident pixels (exact, or nearest
+// within 32) in its 9x9 neighbourhood, the one whose palette colour
 // is nearest to its own in YCbCr with chroma weighted 0.1 (JPEG blurs a boundary into a mix of the
-// two sides' colours, and this keeps it on one of them instead of a third label); with no matched
-// neighbour it becomes 0. Mode "id": the seg slices hold integer IDs (8- or 16-bit grey). With
-// `seg.id_map` (a JSON object {"<input id>": <output id>}) each ID is translated; an ID missing
-// from the map is "unmatched" (0, counted, or an error in strict mode). Input 0 always stays 0.
+// two sides' colours, and this keeps it on one of them instead of a third label); with no confident
+// neighbour an unmatched pixel becomes 0 and an unsure one keeps its nearest match. Mode "id": the
+// seg slices hold integer IDs (8- or 16-bit grey). With `seg.id_map` (a JSON object {"<input id>":
+// <output id>}) each ID is translated; an ID missing from the map is "unmatched" (0, counted, or an
+// error in strict mode). Input 0 always stays 0.
 //
 // The seg slices lie on the observed (drifted) grid of their colour slice. They are resampled
 // onto the output grid with that slice's registration transform (work/register/transforms.json,

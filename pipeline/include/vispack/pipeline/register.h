@@ -25,9 +25,12 @@
 // that: the tubes in the gel do not change along the stack, so their positions tie every slice
 // to a common frame. chain_transforms tracks the fiducials of each slice across the stack
 // (on the grid of a first, pair-edge-only solution), and for each group of slices that see the
-// same set of (at least two) fiducial tracks adds one free "group frame" node with an edge to
-// every slice of the group (the rigid fit of the group's mean fiducial positions to the
-// slice's). The cumulative transforms are the weighted least-squares solution of all edges
+// same set of (at least two) fiducial tracks (each seen on at least 3 slices) adds one free
+// "group frame" node with an edge to every slice of the group: the rigid fit of the group's
+// mean fiducial positions to the slice's, weighted 25 × a pair edge (fiducials do not change
+// along the stack, so they decide the slow part of the drift), dropped where one fiducial
+// misfits by more than 1 px or the fit is more than 10 px from the pair-edge solution. The
+// cumulative transforms are the weighted least-squares solution of all edges
 // (solve_chain): rotations first, then shifts, each a banded linear system bordered by the
 // group nodes. Without fiducials (none found, or fewer than two) the pair edges alone decide.
 // Black slices (almost no signal) get no edges; their transform is linearly interpolated from
@@ -57,13 +60,13 @@ namespace vispack::pipeline {
 
 // A slice prepared for registration: grey float32 levels and flags. Immutable after creation.
 struct RegisterFrame {
-  cv::Size full_size;         // the observed slice's size
-  cv::Mat coarse;             // CV_32F, longer edge ≈ 256 px (or full size if smaller)
+  cv::Size full_size;  // the observed slice's size
+  cv::Mat coarse;      // CV_32F, longer edge ≈ 256 px (or full size if smaller), 5×5 Gaussian
   double coarse_scale = 1.0;  // coarse size / full size
-  cv::Mat fine;               // CV_32F at ecc_scale (may share data with coarse)
+  cv::Mat fine;               // CV_32F at ecc_scale, 5×5 Gaussian (may share data with coarse)
   double fine_scale = 1.0;
-  bool black = false;            // almost no signal: mean grey < 4 and standard deviation < 2
-  std::uint64_t pixel_hash = 0;  // xxHash64 of the pixels (exact duplicate detection)
+  bool black = false;                  // almost no signal: mean grey < 4 and standard deviation < 2
+  std::uint64_t pixel_hash = 0;        // xxHash64 of the pixels (exact duplicate detection)
   std::vector<cv::Point2d> fiducials;  // find_fiducials of the slice (observed pixels)
 };
 
@@ -91,9 +94,11 @@ struct PairEstimate {
 };
 
 // Registers slice k (`to`) against slice j (`from`). Both frames must come from the same
-// options and slice size (throws Error otherwise).
+// options and slice size (throws Error otherwise). With `initial` (a good estimate, e.g. a
+// skip edge composed from two measured neighbour edges) and method "phase+ecc", only the fine
+// ECC step runs from it; the full coarse-to-fine search runs if that fails.
 PairEstimate estimate_pair(const RegisterFrame& from, const RegisterFrame& to,
-                           const RegisterOptions& options);
+                           const RegisterOptions& options, const Rigid* initial = nullptr);
 
 // One measured edge of the pair graph (from < to, stack indices).
 struct PairEdge {
@@ -117,8 +122,8 @@ struct SlicePairs {
   bool black = false;
   std::optional<int> duplicate_of;
   std::uint64_t pixel_hash = 0;
-  std::vector<PairEdge> edges;  // edges ending at this slice (to == index)
-  double quality = 1.0;         // of the edge from the previous usable slice
+  std::vector<PairEdge> edges;         // edges ending at this slice (to == index)
+  double quality = 1.0;                // of the edge from the previous usable slice
   std::vector<cv::Point2d> fiducials;  // the slice's fiducials (RegisterFrame::fiducials)
 };
 nlohmann::json to_json(const SlicePairs& pairs);
@@ -128,7 +133,10 @@ SlicePairs slice_pairs_from_json(const nlohmann::json& j, const std::string& wha
 // Computes the edges of slices [first, last) of a stack whose frames `frame(i)` returns (any
 // index in [max(0, first − 4), last) may be asked for; a frame is asked for at most once per
 // call and the caller may cache). Edges reach back over black slices to the previous two
-// usable ones, looking back at most 4 slices. Runs pairs on `threads` threads.
+// usable ones, looking back at most 4 slices. The nearest edges run first (full search); each
+// skip edge then starts from the composition of the two nearest edges it spans (fine ECC only).
+// The look-back slices before `first` get their nearest edges too (not returned), so a shard
+// computes exactly the records of an unsharded run. Runs pairs on `threads` threads.
 std::vector<SlicePairs> compute_pairs(int first, int last,
                                       const std::function<RegisterFrame(int)>& frame,
                                       const RegisterOptions& options, int threads);

@@ -13,6 +13,8 @@
 
 #include <cstdint>
 #include <memory>
+#include <string>
+#include <vector>
 
 #include "vispack/render/volume.h"
 #include "vispack/viewer/gl_objects.h"
@@ -23,6 +25,11 @@ struct UploadStats {
   std::int64_t bricks = 0;
   std::int64_t bytes = 0;  // texel bytes sent to GL
   double seconds = 0;      // wall time from begin() to the last brick
+  // Bricks whose stored data failed its checksum or did not decode (FormatError from the
+  // source): uploaded as zeros (transparent, HU 0, label 0), i.e. shown as missing. One message
+  // per bad brick, naming the file and brick (issue 7).
+  std::int64_t bad_bricks = 0;
+  std::vector<std::string> bad_brick_errors;
 };
 
 // The finest level of `source` whose dims all fit `max_texture_size` and whose texture bytes

@@ -1,0 +1,152 @@
+#!/usr/bin/env bash
+# Regenerates the benchmark report: builds Release, generates the phantom inputs, runs every
+# benchmark with its peers in the same run, and writes docs/BENCHMARKS.md and docs/img/*.png.
+# Usage: scripts/bench.sh [--quick] [--no-report] [--build DIR] [--no-build]
+#   --quick      a reduced set (tiny phantom, one repetition, no profile) in under 3 minutes
+#   --no-report  measure only; docs/ is not touched (scripts/test.sh runs --quick --no-report)
+#   --build DIR  build folder (default build/, or $VISPACK_BENCH_BUILD)
+#   --no-build   use the executables already in DIR/bin (skip scripts/build.sh)
+# Environment: VISPACK_BENCH_VHP_SLICES (default "2 4 8"): slice counts of the vhp-size scaling
+# runs; VISPACK_BENCH_MEDIUM=0 skips the medium phantom in the scaling runs.
+# Results (JSON, logs) go to BUILD/bench/results; any failing benchmark makes the script exit 1.
+set -euo pipefail
+root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+quick=0 report=1 do_build=1 build=${VISPACK_BENCH_BUILD:-$root/build}
+while [[ $# -gt 0 ]]; do
+  case "$1" in
+    --quick) quick=1 ;;
+    --no-report) report=0 ;;
+    --no-build) do_build=0 ;;
+    --build) build=$(realpath -m "$2"); shift ;;
+    -h|--help) sed -n '2,12p' "$0"; exit 0 ;;
+    *) echo "bench.sh: unknown option $1" >&2; exit 2 ;;
+  esac
+  shift
+done
+py=/usr/bin/python3
+start=$(date +%s)
+stamp() { printf '== [%4ds] %s\n' $(( $(date +%s) - start )) "$*"; }
+fail() { echo "bench.sh: $*" >&2; exit 1; }
+
+"$root/scripts/install-deps.sh" --bench >/dev/null || fail "scripts/install-deps.sh --bench failed"
+for tool in elastix zstd gzip "$py"; do
+  command -v "$tool" >/dev/null || fail "$tool is missing (scripts/install-deps.sh --bench)"
+done
+"$py" -c 'import numpy' 2>/dev/null || fail "python3-numpy is missing (scripts/install-deps.sh)"
+if [[ $report == 1 ]]; then
+  "$py" -c 'import matplotlib' 2>/dev/null || fail "python3-matplotlib is missing (scripts/install-deps.sh --bench)"
+fi
+
+if [[ $do_build == 1 ]]; then
+  stamp "Building Release into $build"
+  VISPACK_BUILD_TYPE=Release "$root/scripts/build.sh" "$build" >"$build.bench-build.log" 2>&1 || {
+    tail -30 "$build.bench-build.log"; fail "build failed (log: $build.bench-build.log)"; }
+fi
+bin=$build/bin
+for exe in vispack-phantom vispack-run vispack-pack vispack-vdb vispack-extract register_bench mask_bench; do
+  [[ -x $bin/$exe ]] || fail "$bin/$exe was not built"
+done
+
+if [[ $quick == 1 ]]; then mode=quick; else mode=full; fi
+work=$build/bench/$mode
+res=$work/results
+rm -rf "$res"
+mkdir -p "$res" "$work/data"
+export VISPACK_BENCH_MODE=$mode VISPACK_BENCH_RESULTS=$res VISPACK_BENCH_BIN=$bin VISPACK_BENCH_WORK=$work
+
+# Machine and date, for the report header.
+"$py" "$root/scripts/bench/machine.py" >"$res/machine.json"
+
+# A phantom folder, generated once per build folder (the same options give the same bytes).
+phantom() {  # phantom NAME PRESET [SLICES [EXTRA FLAGS...]]
+  local dir=$work/data/$1 args=(--preset "$2" --seed 1)
+  [[ -n ${3:-} ]] && args+=(--slices "$3")
+  [[ $# -gt 3 ]] && args+=("${@:4}")
+  if [[ ! -f $dir/.complete || "$(cat "$dir/.complete")" != "${args[*]}" ]]; then
+    rm -rf "$dir"
+    "$bin/vispack-phantom" --out "$dir" "${args[@]}" --quiet >"$res/phantom-$1.log" 2>&1 ||
+      { cat "$res/phantom-$1.log"; fail "vispack-phantom $1 failed"; }
+    echo "${args[*]}" >"$dir/.complete"
+  fi
+  echo "$dir"
+}
+
+if [[ $quick == 1 ]]; then
+  reg_phantom=$(phantom tiny tiny); vol_phantom=$reg_phantom
+  reg_pairs=2 reps=1 mask_slices=2 view_size=64 view_spv=1
+else
+  stamp "Generating phantoms (cached in $work/data)"
+  # Registration pairs from a full-size stack without the black/duplicate slices, so every
+  # consecutive pair is a usable drift measurement (the jump is still in it).
+  reg_phantom=$(phantom vhp-reg vhp 6 --no-defects); vol_phantom=$(phantom small small)
+  reg_pairs=5 reps=3 mask_slices=8 view_size=128 view_spv=0.5,1,2
+fi
+
+stamp "Registration: vispack methods, then elastix on the same pairs"
+rm -rf "$work/reg-dump" && mkdir -p "$work/reg-dump"
+"$bin/register_bench" --phantom "$reg_phantom" --pairs $reg_pairs --reps $reps \
+  --json "$res/register.json" --dump "$work/reg-dump" 2>"$res/register.log" ||
+  { cat "$res/register.log"; fail "register_bench failed"; }
+"$py" "$root/scripts/bench/elastix_peer.py" "$res/register.json" "$work/reg-dump" "$res/register_elastix.json" ||
+  fail "elastix peer failed"
+
+stamp "Mask: CT mask against the colour-threshold baseline"
+"$bin/mask_bench" --slices $mask_slices --reps $reps --json "$res/mask.json" >"$res/mask.log" 2>&1 ||
+  { cat "$res/mask.log"; fail "mask_bench failed"; }
+
+stamp "Pipeline on $(basename "$vol_phantom"), then the pack sweep and its peers"
+vol_name=$(basename "$vol_phantom")
+/usr/bin/time -v "$bin/vispack-run" "$vol_phantom/config.json" --force --quiet \
+  >"$res/run-$vol_name.log" 2>&1 || { tail -30 "$res/run-$vol_name.log"; fail "vispack-run failed"; }
+"$py" "$root/scripts/bench/pack_sweep.py" "$vol_phantom" "$res/pack.json" || fail "pack sweep failed"
+
+stamp "Viewer: slice renderer, then VTK's GPU ray caster on the same volume and view"
+if [[ -x $bin/viewer_bench ]]; then
+  "$bin/viewer_bench" --file "$vol_phantom/out/volume.vpk" --size $view_size --spv $view_spv \
+    --json "$res/viewer.json" --ref-png "$res/viewer_ref.png" >"$res/viewer.log" 2>&1 ||
+    { cat "$res/viewer.log"; fail "viewer_bench failed"; }
+  "$bin/vispack-extract" "$vol_phantom/out/volume.vpk" --channel rgba -o "$work/viewer_rgba.nrrd" >/dev/null ||
+    fail "vispack-extract failed"
+  vtk_cmd=("$py" "$root/scripts/bench/vtk_peer.py" "$res/viewer.json" "$work/viewer_rgba.nrrd" "$res/viewer_vtk.json")
+  # VTK's offscreen window still needs an X display here (Mesa through GLX): use Xvfb without one.
+  if [[ -z ${DISPLAY:-} ]] && command -v xvfb-run >/dev/null; then vtk_cmd=(xvfb-run -a "${vtk_cmd[@]}"); fi
+  "${vtk_cmd[@]}" >"$res/vtk.log" 2>&1 || { cat "$res/vtk.log"; fail "VTK peer failed"; }
+else
+  echo "bench.sh: viewer_bench not built (no viewer); skipping the viewer benchmark" | tee "$res/viewer.skipped"
+fi
+
+stamp "Cost as the work grows: whole pipeline time and peak memory"
+if [[ $quick == 1 ]]; then
+  scale_list="tiny:tiny:"
+else
+  scale_list="tiny:tiny: small:small:"
+  [[ ${VISPACK_BENCH_MEDIUM:-1} == 1 ]] && scale_list+=" medium:medium:"
+  for n in ${VISPACK_BENCH_VHP_SLICES:-2 4 8}; do scale_list+=" vhp-$n:vhp:$n"; done
+fi
+: >"$res/scaling.tsv"
+for item in $scale_list; do
+  IFS=: read -r name preset slices <<<"$item"
+  dir=$(phantom "$name" "$preset" "$slices")
+  [[ -f $res/run-$name.log ]] ||  # the volume phantom's run above counts as its row
+  /usr/bin/time -v "$bin/vispack-run" "$dir/config.json" --force --quiet >"$res/run-$name.log" 2>&1 ||
+    { tail -30 "$res/run-$name.log"; fail "vispack-run $name failed"; }
+  "$py" "$root/scripts/bench/scaling_row.py" "$name" "$dir" "$res/run-$name.log" >>"$res/scaling.tsv"
+  stamp "  $name: $(tail -1 "$res/scaling.tsv")"
+done
+
+if [[ $quick == 0 && -x $bin/format_bench ]]; then
+  stamp "Format details: format_bench (read throughput, random brick decode, writer memory)"
+  "$bin/format_bench" --size 128 --sweep-size 64 --dir "$work/format-bench" >"$res/format_bench.md" 2>"$res/format_bench.log" ||
+    { cat "$res/format_bench.log"; fail "format_bench failed"; }
+fi
+
+if [[ $quick == 0 ]]; then
+  stamp "Profiles: where each stage spends its time (perf, else callgrind)"
+  "$root/scripts/bench/profile.sh" "$vol_phantom" "$res/profile" || fail "profiling failed"
+fi
+
+if [[ $report == 1 ]]; then
+  stamp "Writing docs/BENCHMARKS.md and docs/img/"
+  "$py" "$root/scripts/bench/report.py" "$res" "$root/docs" || fail "report failed"
+fi
+stamp "bench.sh ($mode) finished; results in $res"

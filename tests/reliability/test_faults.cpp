@@ -1,0 +1,412 @@
+// Faults and bad input (issue 7): each case runs vispack-run on a copy of the tiny phantom whose
+// pipeline already ran once, injects one fault, and checks
+//  - the exit code (README table: 3 I/O, 4 invalid file, 5 config, 6 input),
+//  - that stderr is exactly one line "vispack-run: error: ..." naming the culprit,
+//  - that every output of the earlier run is still there, byte for byte, and no temporary is left.
+// docs/RELIABILITY.md lists every case with the message it prints.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <map>
+#include <memory>
+#include <random>
+#include <sstream>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+
+#include "test_support.h"
+#include "vispack/common/atomic_file.h"
+#include "vispack/common/hash.h"
+#include "vispack/format/reader.h"
+#include "vispack/pipeline/slice_io.h"
+
+namespace fs = std::filesystem;
+using vispack::test::bin;
+using vispack::test::run_command;
+using vispack::test::TempDir;
+
+namespace {
+
+struct Result {
+  int rc = -1;
+  std::string err;  // stderr only
+};
+
+// Content hash of every regular file under `dir`, by path relative to `dir`.
+std::map<std::string, std::uint64_t> snapshot(const fs::path& dir) {
+  std::map<std::string, std::uint64_t> out;
+  if (!fs::exists(dir)) return out;
+  for (const auto& e : fs::recursive_directory_iterator(dir))
+    if (e.is_regular_file())
+      out[fs::relative(e.path(), dir).string()] = vispack::xxh64_file(e.path().string());
+  return out;
+}
+
+std::vector<std::string> lines_of(const std::string& text) {
+  std::vector<std::string> out;
+  std::istringstream in(text);
+  for (std::string line; std::getline(in, line);)
+    if (!line.empty()) out.push_back(line);
+  return out;
+}
+
+class Faults : public ::testing::Test {
+ protected:
+  // One tiny phantom, run through the whole pipeline once; every test works on a copy.
+  static void SetUpTestSuite() {
+    base_ = std::make_unique<TempDir>("vispack-faults");
+    const std::string ph = *base_ / "ph";
+    ASSERT_EQ(run_command(bin("vispack-phantom") + " --preset tiny --seed 3 --no-defects --quiet " +
+                          "--threads 2 --out " + ph),
+              0);
+    fs::remove_all(ph + "/truth");
+    std::string out;
+    ASSERT_EQ(run_command(bin("vispack-run") + " " + ph + "/config.json --quiet --threads 2", &out),
+              0)
+        << out;
+  }
+  static void TearDownTestSuite() { base_.reset(); }
+
+  void SetUp() override {
+    dir_ = std::make_unique<TempDir>("vispack-fault");
+    root_ = *dir_ / "ph";
+    fs::copy(*base_ / "ph", root_, fs::copy_options::recursive);
+    before_work_ = snapshot(root_ + "/work");
+    before_out_ = snapshot(root_ + "/out");
+    ASSERT_FALSE(before_out_.empty());
+  }
+
+  std::string path(const std::string& rel) const { return root_ + "/" + rel; }
+  std::string config() const { return path("config.json"); }
+
+  // Runs `prefix vispack-run config.json --quiet args` and keeps stderr only.
+  Result run(const std::string& args, const std::string& prefix = "") const {
+    Result r;
+    r.rc = run_command("(" + prefix + bin("vispack-run") + " " + config() +
+                           " --quiet --threads 2 " + args + " 2>&1 >/dev/null)",
+                       &r.err);
+    return r;
+  }
+
+  // Edits config.json through `edit`.
+  template <class F>
+  void edit_config(F edit) const {
+    nlohmann::json j = nlohmann::json::parse(vispack::read_file(config()));
+    edit(j);
+    std::ofstream(config()) << j.dump(2);
+  }
+
+  // Exit code `rc`, one stderr line "vispack-run: error: ..." that contains every `names`.
+  static void expect_error(const Result& r, int rc, const std::vector<std::string>& names) {
+    EXPECT_EQ(r.rc, rc) << r.err;
+    std::cout << "[ message  ] exit " << r.rc << ": " << r.err;  // for docs/RELIABILITY.md
+    const auto lines = lines_of(r.err);
+    ASSERT_EQ(lines.size(), 1u) << "not one line:\n" << r.err;
+    EXPECT_EQ(lines[0].rfind("vispack-run: error: ", 0), 0u) << lines[0];
+    for (const auto& name : names)
+      EXPECT_NE(lines[0].find(name), std::string::npos)
+          << "'" << name << "' not named: " << lines[0];
+  }
+
+  // Every output of the first run is still there: products (images, transforms.json, the
+  // packed and VDB files) with the same bytes; bookkeeping (manifest.json, report.json,
+  // register/pairs/*.json, which record absolute input paths and so legitimately change in a
+  // copied tree) still complete JSON. No temporary is left.
+  void expect_earlier_outputs_intact() const {
+    for (const auto& [dir, before] : {std::pair{"work", &before_work_}, {"out", &before_out_}}) {
+      const auto now = snapshot(path(dir));
+      for (const auto& [rel, hash] : *before) {
+        auto it = now.find(rel);
+        const std::string name = fs::path(rel).filename().string();
+        const bool bookkeeping = name == "manifest.json" || name == "report.json" ||
+                                 rel.find("pairs/") != std::string::npos;
+        if (it == now.end()) {
+          ADD_FAILURE() << dir << "/" << rel << " disappeared";
+        } else if (bookkeeping) {
+          EXPECT_NO_THROW(
+              (void)nlohmann::json::parse(vispack::read_file(path(std::string(dir) + "/" + rel))))
+              << dir << "/" << rel << " is not complete JSON";
+        } else {
+          EXPECT_EQ(it->second, hash) << dir << "/" << rel << " changed";
+        }
+      }
+      for (const auto& [rel, hash] : now)
+        EXPECT_EQ(rel.find(".tmp-"), std::string::npos) << dir << "/" << rel << " left behind";
+    }
+  }
+
+  // Makes the tree readable and traversable by everyone (TempDir is mode 0700), writable by root
+  // only, so a stage run as user nobody can read every input but write nothing.
+  void open_tree_read_only_for_nobody() const {
+    ::chmod(dir_->path().c_str(), 0755);
+    ASSERT_EQ(run_command("chmod -R a+rX,go-w " + root_), 0);
+  }
+
+  static std::unique_ptr<TempDir> base_;
+  std::unique_ptr<TempDir> dir_;
+  std::string root_;
+  std::map<std::string, std::uint64_t> before_work_, before_out_;
+};
+
+std::unique_ptr<TempDir> Faults::base_;
+
+// ---- disk full and unwritable output ----
+
+TEST_F(Faults, DiskFullWhilePackingKeepsThePreviousVolume) {
+  // RLIMIT_FSIZE of 20 KiB (ulimit -f counts 1 KiB blocks); SIGXFSZ ignored so write() fails with
+  // EFBIG as on a full disk instead of killing the process. The packed file is ~600 KB.
+  Result r =
+      run("--force --from pack", "bash -c 'trap \"\" XFSZ; ulimit -f 20; exec \"$0\" \"$@\"' ");
+  expect_error(r, 3, {path("out/volume.vpk"), "write failed", "File too large"});
+  expect_earlier_outputs_intact();
+}
+
+TEST_F(Faults, DiskFullInTheFirstStage) {
+  Result r = run("--force", "bash -c 'trap \"\" XFSZ; ulimit -f 2; exec \"$0\" \"$@\"' ");
+  expect_error(r, 3, {path("work/register/"), "File too large"});
+  expect_earlier_outputs_intact();
+}
+
+TEST_F(Faults, RealFullFilesystem) {
+  // A 200 KiB tmpfs as the output folder: ENOSPC. Needs mount (root in a container that allows
+  // it); skipped where mount is refused.
+  const std::string mnt = path("small");
+  fs::create_directories(mnt);
+  if (run_command("mount -t tmpfs -o size=200k tmpfs " + mnt) != 0)
+    GTEST_SKIP() << "cannot mount a tmpfs here";
+  edit_config([](nlohmann::json& j) { j["output"] = "small/volume.vpk"; });
+  Result r = run("");
+  run_command("umount " + mnt);
+  expect_error(r, 3, {path("small/volume.vpk"), "No space left on device"});
+  expect_earlier_outputs_intact();
+}
+
+TEST_F(Faults, ReadOnlyOutputFolder) {
+  // We run as root, which ignores permissions: the stage runs as user nobody on a tree that
+  // nobody can read but not write.
+  if (::geteuid() != 0 || run_command("command -v setpriv") != 0) GTEST_SKIP() << "needs root";
+  open_tree_read_only_for_nobody();
+  ASSERT_EQ(run_command("chmod -R a+w " + path("work")), 0);  // only out/ is read-only
+  Result r = run("--force --from pack", "setpriv --reuid=65534 --regid=65534 --clear-groups ");
+  expect_error(r, 3, {path("out/volume.vpk"), "Permission denied"});
+  expect_earlier_outputs_intact();
+}
+
+TEST_F(Faults, ReadOnlyWorkFolder) {
+  if (::geteuid() != 0 || run_command("command -v setpriv") != 0) GTEST_SKIP() << "needs root";
+  open_tree_read_only_for_nobody();
+  Result r = run("--force", "setpriv --reuid=65534 --regid=65534 --clear-groups ");
+  expect_error(r, 3, {path("work/register"), "Permission denied"});
+  expect_earlier_outputs_intact();
+}
+
+// ---- slices that vanish, change or are corrupt ----
+
+TEST_F(Faults, SliceDisappearsBetweenStages) {
+  fs::remove(path("rgb/rgb_0023.png"));
+  Result r = run("--from mask");
+  expect_error(r, 6, {path("work/register/transforms.json"), "24 slices", "the stack has 23"});
+  expect_earlier_outputs_intact();
+}
+
+TEST_F(Faults, SliceDisappearsMidRun) {
+  // The last colour slice is deleted while every stage reruns (--force), at a seeded random
+  // moment. Depending on when, the run either fails cleanly naming the slice (exit 6) or had
+  // already read it (exit 0); then the next run builds the 23-slice volume. Never a crash or a
+  // partial file.
+  std::mt19937 rng(42);
+  const std::string victim = path("rgb/rgb_0023.png");
+  std::string err;
+  const std::string cmd = "(" + bin("vispack-run") + " " + config() +
+                          " --quiet --force --threads 2 2>&1 >/dev/null & pid=$!; sleep 0." +
+                          std::to_string(100 + rng() % 800) + "; rm -f " + victim + "; wait $pid)";
+  Result r;
+  r.rc = run_command(cmd, &r.err);
+  std::cout << "[ message  ] exit " << r.rc << ": " << r.err;
+  EXPECT_FALSE(fs::exists(victim));
+  if (r.rc == 0) {
+    // The slice had been read: the rerun rebuilds a consistent volume of the 23 left.
+    Result again = run("");
+    ASSERT_EQ(again.rc, 0) << again.err;
+    auto reader = vispack::format::Reader::open(path("out/volume.vpk"));
+    EXPECT_EQ(reader.dims(0)[2], 23);
+  } else {
+    ASSERT_EQ(r.rc, 6) << r.err;
+    const auto lines = lines_of(r.err);
+    ASSERT_EQ(lines.size(), 1u) << r.err;
+    EXPECT_NE(lines[0].find(victim), std::string::npos) << lines[0];
+  }
+  for (const auto& dir : {"work", "out"})
+    for (const auto& [rel, hash] : snapshot(path(dir)))
+      EXPECT_EQ(rel.find(".tmp-"), std::string::npos) << rel << " left behind";
+}
+
+TEST_F(Faults, SliceChangesSize) {
+  cv::Mat m = vispack::pipeline::read_slice(path("rgb/rgb_0005.png"));
+  vispack::pipeline::write_image(path("rgb/rgb_0005.png"), m(cv::Rect(0, 0, 90, 60)).clone());
+  Result r = run("");
+  expect_error(r, 6, {path("rgb/rgb_0005.png"), "90x60", "96x64"});
+  expect_earlier_outputs_intact();
+}
+
+TEST_F(Faults, ZeroByteImage) {
+  std::ofstream(path("rgb/rgb_0007.png"), std::ios::trunc);
+  Result r = run("");
+  expect_error(r, 6, {path("rgb/rgb_0007.png"), "empty"});
+  expect_earlier_outputs_intact();
+}
+
+TEST_F(Faults, TruncatedPng) {
+  std::string png = vispack::read_file(path("rgb/rgb_0009.png"));
+  ASSERT_GT(png.size(), 2000u);
+  vispack::write_file_atomic(path("rgb/rgb_0009.png"), png.substr(0, png.size() / 2));
+  Result r = run("");
+  expect_error(r, 6, {path("rgb/rgb_0009.png"), "PNG is truncated"});
+  expect_earlier_outputs_intact();
+}
+
+TEST_F(Faults, TruncatedCtSlice) {
+  std::string png = vispack::read_file(path("ct/ct_0004.png"));
+  vispack::write_file_atomic(path("ct/ct_0004.png"), png.substr(0, png.size() - 100));
+  Result r = run("");
+  expect_error(r, 6, {path("ct/ct_0004.png"), "PNG is truncated"});
+  expect_earlier_outputs_intact();
+}
+
+TEST_F(Faults, SixteenBitRawWhereEightBitIsDeclared) {
+  // A raw colour stack (rgb.raw declares 8 bits); one slice written with 16-bit samples.
+  const std::string raw = *dir_ / "raw";
+  ASSERT_EQ(run_command(bin("vispack-phantom") +
+                        " --preset tiny --slices 4 --rgb-raw --no-defects --quiet --out " + raw),
+            0);
+  nlohmann::json j = nlohmann::json::parse(vispack::read_file(raw + "/config.json"));
+  ASSERT_EQ(j["rgb"]["raw"]["bits"], 8);
+  std::vector<std::string> slices;
+  for (const auto& e : fs::directory_iterator(raw + "/rgb"))
+    slices.push_back(e.path().string());
+  std::sort(slices.begin(), slices.end());
+  ASSERT_EQ(slices.size(), 4u);
+  const std::string slice = slices[2];
+  std::string bytes = vispack::read_file(slice);
+  std::string wide;
+  for (char c : bytes)
+    wide += {c, '\0'};  // little-endian 16-bit samples
+  vispack::write_file_atomic(slice, wide);
+  Result r;
+  r.rc = run_command("(" + bin("vispack-run") + " " + raw + "/config.json --quiet 2>&1 >/dev/null)",
+                     &r.err);
+  expect_error(r, 6, {slice, std::to_string(bytes.size()), std::to_string(wide.size())});
+}
+
+TEST_F(Faults, SixteenBitPngColourSliceIsConverted) {
+  // A 16-bit PNG among 8-bit ones is not an error: it is scaled to 8 bits (255/65535).
+  cv::Mat m = vispack::pipeline::read_slice(path("rgb/rgb_0006.png"));
+  cv::Mat wide;
+  m.convertTo(wide, CV_16UC3, 65535.0 / 255.0);
+  vispack::pipeline::write_image(path("rgb/rgb_0006.png"), wide);
+  Result r = run("");
+  EXPECT_EQ(r.rc, 0) << r.err;
+  cv::Mat registered = vispack::pipeline::read_slice(path("work/register/registered/rgb_0006.png"));
+  EXPECT_EQ(registered.type(), CV_8UC3);
+}
+
+TEST_F(Faults, CtMissingInsideTheStack) {
+  fs::remove(path("ct/ct_0010.png"));
+  Result r = run("");
+  expect_error(r, 6, {path("ct"), "CT slice 10 is missing", "ct_0009.png", "ct_0011.png"});
+  expect_earlier_outputs_intact();
+}
+
+TEST_F(Faults, CtMissingAtTheEndGivesColourOnlyMasks) {
+  // CT k lies on colour k; colour slices beyond the CT stack get a mask from colour alone, and
+  // the mask report counts them.
+  fs::remove(path("ct/ct_0022.png"));
+  fs::remove(path("ct/ct_0023.png"));
+  Result r = run("");
+  ASSERT_EQ(r.rc, 0) << r.err;
+  auto report = nlohmann::json::parse(vispack::read_file(path("work/mask/report.json")));
+  EXPECT_EQ(report["quality"]["colour_only_slices"], 2);
+}
+
+// ---- bad configs ----
+
+TEST_F(Faults, ConfigWrongType) {
+  edit_config([](nlohmann::json& j) { j["pack"]["brick_edge"] = "64"; });
+  Result r = run("");
+  expect_error(r, 5, {config(), "pack.brick_edge", "must be an integer"});
+  expect_earlier_outputs_intact();
+}
+
+TEST_F(Faults, ConfigUnknownKey) {
+  edit_config([](nlohmann::json& j) { j["mask"]["hu_treshold"] = -400; });
+  Result r = run("");
+  expect_error(r, 5, {config(), "mask.hu_treshold", "unknown key"});
+  expect_earlier_outputs_intact();
+}
+
+TEST_F(Faults, ConfigFolderDoesNotExist) {
+  edit_config([](nlohmann::json& j) { j["ct"]["dir"] = "no-such-ct"; });
+  Result r = run("");
+  expect_error(r, 5, {config(), "ct.dir", path("no-such-ct"), "does not exist"});
+  expect_earlier_outputs_intact();
+}
+
+TEST_F(Faults, ConfigPaletteDoesNotExist) {
+  edit_config([](nlohmann::json& j) { j["seg"]["palette"] = "nope.json"; });
+  Result r = run("");
+  expect_error(r, 5, {config(), "seg.palette", "nope.json"});
+  expect_earlier_outputs_intact();
+}
+
+TEST_F(Faults, ConfigNotJson) {
+  std::ofstream(config(), std::ios::app) << "}";
+  Result r = run("");
+  expect_error(r, 5, {config(), "not valid JSON"});
+  expect_earlier_outputs_intact();
+}
+
+TEST_F(Faults, ConfigNumberOverflow) {
+  // Found by fuzz_config: a number beyond double range escaped as std::out_of_range (exit 1).
+  std::string text = vispack::read_file(config());
+  text.replace(text.find("0.5,"), 4, "1E99999,");
+  vispack::write_file_atomic(config(), text);
+  Result r = run("");
+  expect_error(r, 5, {config(), "not valid JSON", "number overflow"});
+  expect_earlier_outputs_intact();
+}
+
+TEST_F(Faults, ConfigFileMissing) {
+  fs::remove(config());
+  Result r = run("");
+  expect_error(r, 3, {config()});
+}
+
+TEST_F(Faults, OutputEqualToAnInputSlice) {
+  const std::string slice = vispack::read_file(path("rgb/rgb_0000.png"));
+  edit_config([](nlohmann::json& j) { j["output"] = "rgb/rgb_0000.png"; });
+  Result r = run("");
+  expect_error(r, 5, {config(), "output", path("rgb/rgb_0000.png"), "input slice folder"});
+  EXPECT_EQ(vispack::read_file(path("rgb/rgb_0000.png")), slice);
+  expect_earlier_outputs_intact();
+}
+
+TEST_F(Faults, OutputEqualToTheConfig) {
+  edit_config([](nlohmann::json& j) { j["vdb_output"] = "./config.json"; });
+  Result r = run("");
+  expect_error(r, 5, {config(), "vdb_output", "the config file"});
+  expect_earlier_outputs_intact();
+}
+
+TEST_F(Faults, WorkFolderIsAnInputFolder) {
+  edit_config([](nlohmann::json& j) { j["work_dir"] = "seg"; });
+  Result r = run("");
+  expect_error(r, 5, {config(), "work_dir", path("seg")});
+  expect_earlier_outputs_intact();
+}
+
+}  // namespace
