@@ -355,10 +355,7 @@ StageResult run_labels_stage(const Config& config, const StageOptions& options) 
   StackTransforms transforms;
   bool have_transforms = fs::exists(tpath);
   if (have_transforms) {
-    transforms = read_transforms(tpath);
-    if (transforms.slices.size() != stack.size())
-      throw InputError(cat(tpath, ": has ", transforms.slices.size(), " slices but the stack has ",
-                           stack.size(), " (rerun vispack-register)"));
+    transforms = read_stack_transforms(config, int(stack.size()));
   } else if (config.registration.enabled) {
     throw InputError(cat(tpath, ": missing; run vispack-register first"));
   }

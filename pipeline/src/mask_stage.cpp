@@ -19,33 +19,17 @@ namespace {
 
 namespace fs = std::filesystem;
 
-class OpenCvThreads {
- public:
-  explicit OpenCvThreads(int n) : previous_(cv::getNumThreads()) { cv::setNumThreads(n); }
-  ~OpenCvThreads() { cv::setNumThreads(previous_); }
-  OpenCvThreads(const OpenCvThreads&) = delete;
-  OpenCvThreads& operator=(const OpenCvThreads&) = delete;
-
- private:
-  int previous_;
-};
-
 }  // namespace
 
 StageResult run_mask_stage(const Config& config, const StageOptions& options) {
   const std::vector<SliceFile> files = stack_slices(config);
   const int n = int(files.size());
   const std::string tpath = transforms_path(config);
-  if (!fs::exists(tpath))
-    throw InputError(cat(tpath, ": missing; run vispack-register before vispack-mask"));
-  const StackTransforms st = read_transforms(tpath);
-  if (int(st.slices.size()) != n)
-    throw InputError(cat(tpath, ": has ", st.slices.size(), " slices, the stack has ", n,
-                         "; rerun vispack-register"));
+  const StackTransforms st = read_stack_transforms(config, n);
   std::vector<SliceFile> ct_files;
   if (config.ct) ct_files = list_slices(*config.ct);
   StageRun run(config, "mask", n, options, {"mask", "ct"}, {tpath});
-  OpenCvThreads opencv_threads(run.threads() > 1 ? 1 : cv::getNumThreads());
+  ScopedOpenCvThreads opencv_threads(run.threads() > 1 ? 1 : cv::getNumThreads());
   const SliceRange range = run.range();
   std::vector<double> coverage(static_cast<std::size_t>(range.size()), -1.0);
   std::atomic<long long> compute_ns{0};

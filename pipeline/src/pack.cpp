@@ -73,19 +73,9 @@ std::string hash_of_file_or_empty(const std::string& path) {
 StageResult run_pack_stage(const Config& config, const StageOptions& options) {
   std::vector<SliceFile> stack = stack_slices(config);
   const int n = int(stack.size());
-  if (!options.slices.empty()) {
-    SliceRange r = parse_slice_range(options.slices, n);
-    if (r.first != 0 || r.last != n)
-      throw UsageError(
-          "vispack-pack does not shard: the packed file is written as one stream; run it without "
-          "--slices");
-  }
+  require_whole_stack(options, n, "vispack-pack");
   const std::string tpath = transforms_path(config);
-  if (!fs::exists(tpath)) throw InputError(cat(tpath, ": missing; run vispack-register first"));
-  StackTransforms transforms = read_transforms(tpath);
-  if (int(transforms.slices.size()) != n)
-    throw InputError(
-        cat(tpath, ": has ", transforms.slices.size(), " slices but the stack has ", n));
+  StackTransforms transforms = read_stack_transforms(config, n);
   const bool has_ct = config.ct.has_value(), has_labels = config.seg.has_value();
 
   // One unit of work: its input fingerprint covers every intermediate read.

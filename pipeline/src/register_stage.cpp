@@ -24,18 +24,6 @@ namespace fs = std::filesystem;
 
 constexpr double kOutlineDistance = 80.0;  // colour distance from the gel of the RGB outline
 
-// OpenCV's own thread pool is switched off while slices are spread over our workers.
-class OpenCvThreads {
- public:
-  explicit OpenCvThreads(int n) : previous_(cv::getNumThreads()) { cv::setNumThreads(n); }
-  ~OpenCvThreads() { cv::setNumThreads(previous_); }
-  OpenCvThreads(const OpenCvThreads&) = delete;
-  OpenCvThreads& operator=(const OpenCvThreads&) = delete;
-
- private:
-  int previous_;
-};
-
 std::string pairs_path(const Config& config, int k) {
   return slice_output_path(config, "register", "pairs/pairs", k, "json");
 }
@@ -164,7 +152,7 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
   StageRun run(
       config, "register", n, options,
       {"rgb", "register", "ct", "mask.hu_threshold", "mask.gel_colour", "mask.gel_distance"});
-  OpenCvThreads opencv_threads(run.threads() > 1 ? 1 : cv::getNumThreads());
+  ScopedOpenCvThreads opencv_threads(run.threads() > 1 ? 1 : cv::getNumThreads());
   const SliceRange range = run.range();
   const auto t0 = std::chrono::steady_clock::now();
 

@@ -1,5 +1,5 @@
-#include <cctype>
 #include "vispack/pipeline/stage.h"
+#include <cctype>
 
 #include <sys/stat.h>
 
@@ -267,6 +267,34 @@ cv::Matx23d output_to_ct(const CtToRgb& t, const std::array<double, 2>& c,
 
 // ---- StageRun ----
 
+StackTransforms read_stack_transforms(const Config& config, int slice_count) {
+  const std::string path = transforms_path(config);
+  if (!fs::exists(path)) throw InputError(cat(path, ": missing; run vispack-register first"));
+  StackTransforms transforms = read_transforms(path);
+  if (int(transforms.slices.size()) != slice_count) {
+    throw InputError(cat(path, ": has ", transforms.slices.size(), " slices but the stack has ",
+                         slice_count, "; rerun vispack-register"));
+  }
+  return transforms;
+}
+
+void require_whole_stack(const StageOptions& options, int slice_count, const std::string& program) {
+  if (options.slices.empty()) return;
+  SliceRange range = parse_slice_range(options.slices, slice_count);
+  if (range.first != 0 || range.last != slice_count) {
+    throw UsageError(cat(program,
+                         " does not shard: its output is one file written as one stream; "
+                         "run it without --slices"));
+  }
+}
+
+ScopedOpenCvThreads::ScopedOpenCvThreads(int threads) : previous_(cv::getNumThreads()) {
+  cv::setNumThreads(threads);
+}
+ScopedOpenCvThreads::~ScopedOpenCvThreads() {
+  cv::setNumThreads(previous_);
+}
+
 namespace {
 
 // The final path a temporary file stands for ("x.png.tmp-123-4" -> "x.png"), or "" if `name` is
@@ -280,7 +308,8 @@ std::string temporary_target(const std::string& name) {
 int index_in_name(const std::string& name) {
   auto dot = name.rfind('.');
   auto underscore = name.rfind('_', dot);
-  if (dot == std::string::npos || underscore == std::string::npos || dot <= underscore + 1) return -1;
+  if (dot == std::string::npos || underscore == std::string::npos || dot <= underscore + 1)
+    return -1;
   int index = 0;
   for (std::size_t i = underscore + 1; i < dot; ++i) {
     if (!std::isdigit(static_cast<unsigned char>(name[i]))) return -1;
@@ -298,15 +327,16 @@ void StageRun::remove_stale_temporaries() const {
   // shard removes only the temporaries of its own slices, since other shards may be running.
   std::error_code ec;
   std::vector<fs::path> stale;
-  for (auto it = fs::recursive_directory_iterator(dir_, ec); !ec && it != fs::recursive_directory_iterator();
-       it.increment(ec)) {
+  for (auto it = fs::recursive_directory_iterator(dir_, ec);
+       !ec && it != fs::recursive_directory_iterator(); it.increment(ec)) {
     if (!it->is_regular_file(ec)) continue;
     std::string target = temporary_target(it->path().filename().string());
     if (target.empty()) continue;
     if (sharded_ && !range_.contains(index_in_name(target))) continue;
     stale.push_back(it->path());
   }
-  for (const auto& path : stale) fs::remove(path, ec);
+  for (const auto& path : stale)
+    fs::remove(path, ec);
 }
 
 void StageRun::remove_stale_temporaries_of(const std::string& final_path) const {
@@ -317,7 +347,8 @@ void StageRun::remove_stale_temporaries_of(const std::string& final_path) const 
   std::vector<fs::path> stale;
   for (const auto& entry : fs::directory_iterator(folder, ec))
     if (entry.path().filename().string().rfind(prefix, 0) == 0) stale.push_back(entry.path());
-  for (const auto& path : stale) fs::remove(path, ec);
+  for (const auto& path : stale)
+    fs::remove(path, ec);
 }
 
 StageRun::StageRun(const Config& config, std::string stage, int slice_count,

@@ -44,16 +44,9 @@ StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
     throw ConfigError(cat(config.path, ": vdb.enabled is false: no OpenVDB export configured"));
   std::vector<SliceFile> stack = stack_slices(config);
   const int n = int(stack.size());
-  if (!options.slices.empty()) {
-    SliceRange r = parse_slice_range(options.slices, n);
-    if (r.first != 0 || r.last != n)
-      throw UsageError(
-          "vispack-vdb does not shard: the .vdb file is written as one piece; run it without "
-          "--slices");
-  }
+  require_whole_stack(options, n, "vispack-vdb");
   const std::string tpath = transforms_path(config);
-  if (!fs::exists(tpath)) throw InputError(cat(tpath, ": missing; run vispack-register first"));
-  StackTransforms transforms = read_transforms(tpath);
+  StackTransforms transforms = read_stack_transforms(config, n);
   const cv::Size size(transforms.width, transforms.height);
   const bool has_ct = config.ct.has_value(), has_labels = config.seg.has_value();
 

@@ -152,6 +152,10 @@ struct StackTransforms {
 // Reads / writes transforms.json. read throws FormatError naming the file and key (IoError if
 // unreadable); write is atomic (IoError).
 StackTransforms read_transforms(const std::string& path);
+// The register stage's transforms for a stack of `slice_count` slices: reads
+// <work>/register/transforms.json. Throws InputError naming the file when it is missing ("run
+// vispack-register first") or covers another number of slices ("rerun vispack-register").
+StackTransforms read_stack_transforms(const Config& config, int slice_count);
 void write_transforms(const std::string& path, const StackTransforms& transforms);
 
 // The 2x3 affine matrix M with p = M (q, 1): output-grid point q -> observed-slice point p.
@@ -161,6 +165,24 @@ cv::Matx23d output_to_observed(const SliceTransform& t, const std::array<double,
 // `ct_center` = ((Wct-1)/2, (Hct-1)/2); use with warpAffine(..., WARP_INVERSE_MAP).
 cv::Matx23d output_to_ct(const CtToRgb& t, const std::array<double, 2>& center_px,
                          const std::array<double, 2>& ct_center);
+
+// Throws UsageError when options.slices asks for less than the whole stack: for stages whose
+// output is one file written as one stream (pack, vdb). `program` names the executable.
+void require_whole_stack(const StageOptions& options, int slice_count, const std::string& program);
+
+// Sets OpenCV's own thread count for this object's lifetime (restored on destruction): stages
+// that spread slices over their own workers switch OpenCV's pool off to avoid oversubscription.
+// Not thread-safe (OpenCV's setting is process-wide): construct it on the stage's calling thread.
+class ScopedOpenCvThreads {
+ public:
+  explicit ScopedOpenCvThreads(int threads);
+  ~ScopedOpenCvThreads();
+  ScopedOpenCvThreads(const ScopedOpenCvThreads&) = delete;
+  ScopedOpenCvThreads& operator=(const ScopedOpenCvThreads&) = delete;
+
+ private:
+  int previous_;
+};
 
 // ---- StageRun ----
 
