@@ -7,7 +7,8 @@
 #   --build DIR  build folder (default build/, or $VISPACK_BENCH_BUILD)
 #   --no-build   use the executables already in DIR/bin (skip scripts/build.sh)
 # Environment: VISPACK_BENCH_VHP_SLICES (default "2 4 8"): slice counts of the vhp-size scaling
-# runs; VISPACK_BENCH_MEDIUM=0 skips the medium phantom in the scaling runs.
+# runs; VISPACK_BENCH_MEDIUM=0 skips the medium phantom in the scaling runs;
+# VISPACK_BENCH_MEM_SLICES (default "64 128 256"): slice counts of the per-stage memory runs.
 # Results (JSON, logs) go to BUILD/bench/results; any failing benchmark makes the script exit 1.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
@@ -43,7 +44,8 @@ if [[ $do_build == 1 ]]; then
     tail -30 "$build.bench-build.log"; fail "build failed (log: $build.bench-build.log)"; }
 fi
 bin=$build/bin
-for exe in vispack-phantom vispack-run vispack-pack vispack-vdb vispack-extract register_bench mask_bench; do
+for exe in vispack-phantom vispack-run vispack-register vispack-mask vispack-labels vispack-pack vispack-vdb \
+  vispack-extract register_bench mask_bench; do
   [[ -x $bin/$exe ]] || fail "$bin/$exe was not built"
 done
 
@@ -133,6 +135,19 @@ for item in $scale_list; do
   "$py" "$root/scripts/bench/scaling_row.py" "$name" "$dir" "$res/run-$name.log" >>"$res/scaling.tsv"
   stamp "  $name: $(tail -1 "$res/scaling.tsv")"
 done
+
+stamp "Stages one by one: time per slice on 1 and 2 threads, error against truth (issue 4)"
+if [[ $quick == 1 ]]; then stage_phantom=$(phantom tiny tiny); else stage_phantom=$(phantom vhp-8 vhp 8); fi
+"$py" "$root/scripts/bench/stage_table.py" "$stage_phantom" "$res/stages.json" 2>"$res/stages.log" ||
+  { cat "$res/stages.log"; fail "stage table failed"; }
+
+stamp "Stages one by one: peak memory as the slice count grows"
+# The writer holds up to ~two brick rows of 64 slices, so the counts must span several rows.
+if [[ $quick == 1 ]]; then mem_list="24 48"; mem_preset=tiny; else mem_list=${VISPACK_BENCH_MEM_SLICES:-64 128 256}; mem_preset=small; fi
+mem_dirs=()
+for n in $mem_list; do mem_dirs+=("$(phantom "mem-$mem_preset-$n" "$mem_preset" "$n")"); done
+"$py" "$root/scripts/bench/stage_memory.py" "$res/stage_memory.json" "${mem_dirs[@]}" 2>"$res/stage_memory.log" ||
+  { cat "$res/stage_memory.log"; fail "stage memory runs failed"; }
 
 if [[ $quick == 0 && -x $bin/format_bench ]]; then
   stamp "Format details: format_bench (read throughput, random brick decode, writer memory)"
