@@ -79,13 +79,7 @@ StageResult run_pack_stage(const Config& config, const StageOptions& options) {
   const bool has_ct = config.ct.has_value(), has_labels = config.seg.has_value();
 
   // One unit of work: its input fingerprint covers every intermediate read.
-  Fingerprint fp;
-  fp.file(tpath);
-  for (int k = 0; k < n; ++k) {
-    fp.file(registered_rgb_path(config, k)).file(mask_path(config, k));
-    if (has_ct) fp.file(mask_ct_path(config, k));
-    if (has_labels) fp.file(labels_path(config, k));
-  }
+  Fingerprint fp = intermediates_fingerprint(config, n);
   if (has_labels && !config.seg->palette.empty()) fp.file(config.seg->palette);
   fp.text(config.output);
   StageOptions unit = options;

@@ -278,6 +278,17 @@ StackTransforms read_stack_transforms(const Config& config, int slice_count) {
   return transforms;
 }
 
+Fingerprint intermediates_fingerprint(const Config& config, int slice_count) {
+  Fingerprint fp;
+  fp.file(transforms_path(config));
+  for (int k = 0; k < slice_count; ++k) {
+    fp.file(registered_rgb_path(config, k)).file(mask_path(config, k));
+    if (config.ct) fp.file(mask_ct_path(config, k));
+    if (config.seg) fp.file(labels_path(config, k));
+  }
+  return fp;
+}
+
 void require_whole_stack(const StageOptions& options, int slice_count, const std::string& program) {
   if (options.slices.empty()) return;
   SliceRange range = parse_slice_range(options.slices, slice_count);

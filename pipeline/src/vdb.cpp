@@ -45,18 +45,11 @@ StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
   std::vector<SliceFile> stack = stack_slices(config);
   const int n = int(stack.size());
   require_whole_stack(options, n, "vispack-vdb");
-  const std::string tpath = transforms_path(config);
   StackTransforms transforms = read_stack_transforms(config, n);
   const cv::Size size(transforms.width, transforms.height);
   const bool has_ct = config.ct.has_value(), has_labels = config.seg.has_value();
 
-  Fingerprint fp;
-  fp.file(tpath);
-  for (int k = 0; k < n; ++k) {
-    fp.file(registered_rgb_path(config, k)).file(mask_path(config, k));
-    if (has_ct) fp.file(mask_ct_path(config, k));
-    if (has_labels) fp.file(labels_path(config, k));
-  }
+  Fingerprint fp = intermediates_fingerprint(config, n);
   fp.text(config.vdb_output);
   StageOptions unit = options;
   unit.slices.clear();

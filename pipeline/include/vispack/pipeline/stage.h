@@ -168,6 +168,11 @@ cv::Matx23d output_to_ct(const CtToRgb& t, const std::array<double, 2>& center_p
 
 // Throws UsageError when options.slices asks for less than the whole stack: for stages whose
 // output is one file written as one stream (pack, vdb). `program` names the executable.
+// A fingerprint of every intermediate a whole-volume stage reads (pack, vdb): transforms.json,
+// then per slice the registered colour, the mask, the resampled CT (when CT is configured) and the
+// labels (when segmentation is configured). Callers add their own inputs and options to it.
+Fingerprint intermediates_fingerprint(const Config& config, int slice_count);
+
 void require_whole_stack(const StageOptions& options, int slice_count, const std::string& program);
 
 // Sets OpenCV's own thread count for this object's lifetime (restored on destruction): stages
