@@ -40,8 +40,9 @@ fi
 
 if [[ $do_build == 1 ]]; then
   stamp "Building Release into $build"
-  VISPACK_BUILD_TYPE=Release "$root/scripts/build.sh" "$build" >"$build.bench-build.log" 2>&1 || {
-    tail -30 "$build.bench-build.log"; fail "build failed (log: $build.bench-build.log)"; }
+  mkdir -p "$build"
+  VISPACK_BUILD_TYPE=Release "$root/scripts/build.sh" "$build" >"$build/bench-build.log" 2>&1 || {
+    tail -30 "$build/bench-build.log"; fail "build failed (log: $build/bench-build.log)"; }
 fi
 bin=$build/bin
 for exe in vispack-phantom vispack-run vispack-register vispack-mask vispack-labels vispack-pack vispack-vdb \

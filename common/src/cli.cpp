@@ -112,7 +112,8 @@ std::string Args::positional(const std::string& meta, const std::string& help, b
     used_[i] = true;
     return args_[i];
   }
-  if (!optional && !help_requested_) throw UsageError(cat("missing ", meta, " (see --help)"));
+  // Reported by done(), after unknown options: "vispack-info --bogus" names --bogus, not FILE.
+  if (!optional && missing_.empty()) missing_ = meta;
   return {};
 }
 
@@ -131,6 +132,7 @@ void Args::done() {
       throw UsageError(cat("unexpected argument '", args_[i], "' (see --help)"));
     }
   }
+  if (!missing_.empty()) throw UsageError(cat("missing ", missing_, " (see --help)"));
 }
 
 SliceRange parse_slice_range(const std::string& text, int count) {

@@ -1,5 +1,11 @@
 #include "vispack/format/downsample.h"
 
+#include <algorithm>
+#include <cstring>
+#include <vector>
+
+#include "vispack/common/parallel.h"
+
 namespace vispack::format {
 namespace {
 
@@ -9,6 +15,15 @@ std::int64_t round_div(std::int64_t sum, std::int64_t n) {
   std::int64_t q = num / den;
   if ((num % den != 0) && (num < 0)) --q;  // C++ truncates toward zero; we want floor
   return q;
+}
+
+std::int64_t ceil_div(std::int64_t a, std::int64_t b) {
+  return (a + b - 1) / b;
+}
+
+// The tie-break of reduce_majority: does `id` seen `n` times beat `best` seen `best_n` times?
+inline bool beats(std::uint16_t id, std::size_t n, std::uint16_t best, std::size_t best_n) {
+  return n > best_n || (n == best_n && id != 0 && (best == 0 || id < best));
 }
 
 }  // namespace
@@ -40,22 +55,215 @@ std::array<std::uint8_t, 4> reduce_rgba_alpha_weighted(const std::uint8_t* child
   return out;
 }
 
-std::uint16_t reduce_majority(const std::uint16_t* children, int count) {
-  // At most 8 children: count by pairwise comparison, no allocation.
-  std::uint16_t best = children[0];
-  int best_count = 0;
-  for (int i = 0; i < count; ++i) {
-    std::uint16_t id = children[i];
-    int n = 0;
-    for (int j = 0; j < count; ++j)
-      n += children[j] == id;
-    bool better = n > best_count || (n == best_count && id != 0 && (best == 0 || id < best));
-    if (better) {
-      best = id;
-      best_count = n;
+std::uint16_t reduce_majority(const std::uint16_t* ids, std::size_t count) {
+  std::uint16_t best = ids[0];
+  std::size_t best_n = 0;
+  if (count <= 8) {
+    // Count by pairwise comparison, no allocation (the pyramid's hot path).
+    for (std::size_t i = 0; i < count; ++i) {
+      const std::uint16_t id = ids[i];
+      std::size_t n = 0;
+      for (std::size_t j = 0; j < count; ++j)
+        n += ids[j] == id;
+      if (beats(id, n, best, best_n)) {
+        best = id;
+        best_n = n;
+      }
     }
+    return best;
+  }
+  std::vector<std::uint16_t> sorted(ids, ids + count);
+  std::sort(sorted.begin(), sorted.end());
+  for (std::size_t i = 0; i < sorted.size();) {
+    std::size_t j = i;
+    while (j < sorted.size() && sorted[j] == sorted[i])
+      ++j;
+    if (beats(sorted[i], j - i, best, best_n)) {
+      best = sorted[i];
+      best_n = j - i;
+    }
+    i = j;
   }
   return best;
+}
+
+namespace {
+
+// Reduces the children of output voxel (x, y) in the general case (fewer than eight children
+// at the volume's edges), gathering them in z, y, x order as the reduce_* functions expect.
+void reduce_generic(ChannelType type, const std::uint8_t* src, int nzc, std::int64_t dx,
+                    std::int64_t dy, std::int64_t x, std::int64_t y, std::uint8_t* out) {
+  const std::size_t bytes = channel_type_bytes(type);
+  const std::size_t plane = std::size_t(dx) * std::size_t(dy);
+  std::uint8_t children[8 * 4];
+  int n = 0;
+  for (int z = 0; z < nzc; ++z) {
+    for (std::int64_t yy = 2 * y; yy < std::min(dy, 2 * y + 2); ++yy) {
+      for (std::int64_t xx = 2 * x; xx < std::min(dx, 2 * x + 2); ++xx) {
+        std::memcpy(children + n * bytes, src + (z * plane + yy * dx + xx) * bytes, bytes);
+        ++n;
+      }
+    }
+  }
+  switch (type) {
+    case ChannelType::kRgba8: {
+      auto v = reduce_rgba_alpha_weighted(children, n);
+      std::memcpy(out, v.data(), 4);
+      break;
+    }
+    case ChannelType::kInt16: {
+      std::int16_t c[8];
+      std::memcpy(c, children, 2 * n);
+      std::int16_t v = reduce_mean_i16(c, n);
+      std::memcpy(out, &v, 2);
+      break;
+    }
+    case ChannelType::kUint8: {
+      std::uint16_t c[8];
+      for (int i = 0; i < n; ++i)
+        c[i] = children[i];
+      *out = std::uint8_t(reduce_majority(c, n));
+      break;
+    }
+    case ChannelType::kUint16: {
+      std::uint16_t c[8];
+      std::memcpy(c, children, 2 * n);
+      std::uint16_t v = reduce_majority(c, n);
+      std::memcpy(out, &v, 2);
+      break;
+    }
+  }
+}
+
+// Fast paths for an output voxel with all eight children present. Each gives exactly the
+// result of the reduce_* function on the same children (integer arithmetic only):
+//   mean of 8:      round_div(sum, 8) = floor((2 * sum + 8) / 16) = (sum + 4) >> 3 (floor shift);
+//   alpha-weighted: when all eight alphas are equal (alpha > 0, or all 0), the weighted mean
+//                   round_div(alpha * sum_c, 8 * alpha) equals round_div(sum_c, 8);
+//   majority:       eight equal IDs give that ID.
+// `r[k]` points at the first child of row k (k = 2 * z + y), x pairs adjacent.
+inline void reduce8_rgba(const std::uint8_t* const r[4], std::uint8_t* out) {
+  std::uint32_t sum_a = 0, a_min = 255, a_max = 0;
+  for (int k = 0; k < 4; ++k) {
+    for (int i = 0; i < 2; ++i) {
+      std::uint32_t a = r[k][4 * i + 3];
+      sum_a += a;
+      a_min = std::min(a_min, a);
+      a_max = std::max(a_max, a);
+    }
+  }
+  if (a_min == a_max) {
+    for (int c = 0; c < 3; ++c) {
+      std::uint32_t s = 0;
+      for (int k = 0; k < 4; ++k)
+        s += std::uint32_t(r[k][c]) + r[k][4 + c];
+      out[c] = std::uint8_t((s + 4) >> 3);
+    }
+  } else {
+    for (int c = 0; c < 3; ++c) {
+      std::uint32_t s = 0;
+      for (int k = 0; k < 4; ++k)
+        s += std::uint32_t(r[k][c]) * r[k][3] + std::uint32_t(r[k][4 + c]) * r[k][7];
+      out[c] = std::uint8_t((2 * s + sum_a) / (2 * sum_a));  // round_div, non-negative
+    }
+  }
+  out[3] = std::uint8_t((sum_a + 4) >> 3);
+}
+
+template <typename T>
+inline T majority8(const T* const r[4]) {
+  const T v = r[0][0];
+  if (r[0][1] == v && r[1][0] == v && r[1][1] == v && r[2][0] == v && r[2][1] == v &&
+      r[3][0] == v && r[3][1] == v) {
+    return v;
+  }
+  std::uint16_t c[8];
+  for (int k = 0; k < 4; ++k) {
+    c[2 * k] = r[k][0];
+    c[2 * k + 1] = r[k][1];
+  }
+  return T(reduce_majority(c, 8));
+}
+
+// Reduces output row y where all of its rows' children exist (2 * y + 1 < dy and nzc == 2),
+// for x in [0, full_x); the caller handles x >= full_x.
+void downsample_row_full(ChannelType type, const std::uint8_t* src, std::int64_t dx,
+                         std::int64_t dy, std::int64_t y, std::int64_t full_x, std::uint8_t* dst) {
+  const std::size_t bytes = channel_type_bytes(type);
+  const std::size_t plane = std::size_t(dx) * std::size_t(dy) * bytes;
+  const std::size_t row = std::size_t(dx) * bytes;
+  const std::uint8_t* base = src + std::size_t(2 * y) * row;
+  const std::uint8_t* rows[4] = {base, base + row, base + plane, base + plane + row};
+  switch (type) {
+    case ChannelType::kRgba8:
+      for (std::int64_t x = 0; x < full_x; ++x) {
+        const std::uint8_t* r[4];
+        for (int k = 0; k < 4; ++k)
+          r[k] = rows[k] + 8 * x;
+        reduce8_rgba(r, dst + 4 * x);
+      }
+      break;
+    case ChannelType::kInt16:
+      for (std::int64_t x = 0; x < full_x; ++x) {
+        std::int32_t s = 0;
+        for (int k = 0; k < 4; ++k) {
+          std::int16_t v[2];
+          std::memcpy(v, rows[k] + 4 * x, 4);
+          s += std::int32_t(v[0]) + v[1];
+        }
+        const std::int16_t m = std::int16_t((s + 4) >> 3);
+        std::memcpy(dst + 2 * x, &m, 2);
+      }
+      break;
+    case ChannelType::kUint8:
+      for (std::int64_t x = 0; x < full_x; ++x) {
+        const std::uint8_t* r[4];
+        for (int k = 0; k < 4; ++k)
+          r[k] = rows[k] + 2 * x;
+        dst[x] = majority8(r);
+      }
+      break;
+    case ChannelType::kUint16:
+      for (std::int64_t x = 0; x < full_x; ++x) {
+        std::uint16_t c[4][2];
+        const std::uint16_t* r[4];
+        for (int k = 0; k < 4; ++k) {
+          std::memcpy(c[k], rows[k] + 4 * x, 4);
+          r[k] = c[k];
+        }
+        const std::uint16_t m = majority8(r);
+        std::memcpy(dst + 2 * x, &m, 2);
+      }
+      break;
+  }
+}
+
+}  // namespace
+
+void downsample_slice(ChannelType type, const std::uint8_t* src, int nzc, std::int64_t dx,
+                      std::int64_t dy, std::uint8_t* dst, int threads) {
+  const std::int64_t ox = ceil_div(dx, 2), oy = ceil_div(dy, 2);
+  const std::size_t bytes = channel_type_bytes(type);
+  auto row = [&](std::int64_t y) {
+    std::uint8_t* out = dst + std::size_t(y) * std::size_t(ox) * bytes;
+    std::int64_t x = 0;
+    if (nzc == 2 && 2 * y + 1 < dy) {
+      x = dx / 2;  // output voxels with both x children
+      downsample_row_full(type, src, dx, dy, y, x, out);
+    }
+    for (; x < ox; ++x)
+      reduce_generic(type, src, nzc, dx, dy, x, y, out + std::size_t(x) * bytes);
+  };
+  if (ox * oy < 65536 || threads <= 1) {
+    for (std::int64_t y = 0; y < oy; ++y)
+      row(y);
+  } else {
+    const std::int64_t chunk = 16;
+    parallel_for(ceil_div(oy, chunk), threads, [&](std::int64_t i) {
+      for (std::int64_t y = i * chunk; y < std::min(oy, (i + 1) * chunk); ++y)
+        row(y);
+    });
+  }
 }
 
 }  // namespace vispack::format

@@ -22,7 +22,9 @@
 #include "vispack/common/hash.h"
 #include "vispack/common/parallel.h"
 #include "vispack/format/downsample.h"
-#include "vispack/format/reader.h"
+#include "vispack/format/geometry.h"
+#include "vispack/format/limits.h"
+#include "vispack/format/metadata.h"
 
 namespace vispack::format {
 namespace {
@@ -152,182 +154,6 @@ void brick_stats(ChannelType type, const std::uint8_t* data, std::size_t voxels,
   }
 }
 
-// Reduces the children of output voxel (x, y) in the general case (fewer than eight children
-// at the volume's edges), gathering them in z, y, x order as the reduce_* functions expect.
-void reduce_generic(ChannelType type, const std::uint8_t* src, int nzc, std::int64_t dx,
-                    std::int64_t dy, std::int64_t x, std::int64_t y, std::uint8_t* out) {
-  const std::size_t bytes = channel_type_bytes(type);
-  const std::size_t plane = std::size_t(dx) * std::size_t(dy);
-  std::uint8_t children[8 * 4];
-  int n = 0;
-  for (int z = 0; z < nzc; ++z) {
-    for (std::int64_t yy = 2 * y; yy < std::min(dy, 2 * y + 2); ++yy) {
-      for (std::int64_t xx = 2 * x; xx < std::min(dx, 2 * x + 2); ++xx) {
-        std::memcpy(children + n * bytes, src + (z * plane + yy * dx + xx) * bytes, bytes);
-        ++n;
-      }
-    }
-  }
-  switch (type) {
-    case ChannelType::kRgba8: {
-      auto v = reduce_rgba_alpha_weighted(children, n);
-      std::memcpy(out, v.data(), 4);
-      break;
-    }
-    case ChannelType::kInt16: {
-      std::int16_t c[8];
-      std::memcpy(c, children, 2 * n);
-      std::int16_t v = reduce_mean_i16(c, n);
-      std::memcpy(out, &v, 2);
-      break;
-    }
-    case ChannelType::kUint8: {
-      std::uint16_t c[8];
-      for (int i = 0; i < n; ++i)
-        c[i] = children[i];
-      *out = std::uint8_t(reduce_majority(c, n));
-      break;
-    }
-    case ChannelType::kUint16: {
-      std::uint16_t c[8];
-      std::memcpy(c, children, 2 * n);
-      std::uint16_t v = reduce_majority(c, n);
-      std::memcpy(out, &v, 2);
-      break;
-    }
-  }
-}
-
-// Fast paths for an output voxel with all eight children present. Each gives exactly the
-// result of the reduce_* function on the same children (integer arithmetic only):
-//   mean of 8:      round_div(sum, 8) = floor((2 * sum + 8) / 16) = (sum + 4) >> 3 (floor shift);
-//   alpha-weighted: when all eight alphas are equal (alpha > 0, or all 0), the weighted mean
-//                   round_div(alpha * sum_c, 8 * alpha) equals round_div(sum_c, 8);
-//   majority:       eight equal IDs give that ID.
-// `r[k]` points at the first child of row k (k = 2 * z + y), x pairs adjacent.
-inline void reduce8_rgba(const std::uint8_t* const r[4], std::uint8_t* out) {
-  std::uint32_t sum_a = 0, a_min = 255, a_max = 0;
-  for (int k = 0; k < 4; ++k) {
-    for (int i = 0; i < 2; ++i) {
-      std::uint32_t a = r[k][4 * i + 3];
-      sum_a += a;
-      a_min = std::min(a_min, a);
-      a_max = std::max(a_max, a);
-    }
-  }
-  if (a_min == a_max) {
-    for (int c = 0; c < 3; ++c) {
-      std::uint32_t s = 0;
-      for (int k = 0; k < 4; ++k)
-        s += std::uint32_t(r[k][c]) + r[k][4 + c];
-      out[c] = std::uint8_t((s + 4) >> 3);
-    }
-  } else {
-    for (int c = 0; c < 3; ++c) {
-      std::uint32_t s = 0;
-      for (int k = 0; k < 4; ++k)
-        s += std::uint32_t(r[k][c]) * r[k][3] + std::uint32_t(r[k][4 + c]) * r[k][7];
-      out[c] = std::uint8_t((2 * s + sum_a) / (2 * sum_a));  // round_div, non-negative
-    }
-  }
-  out[3] = std::uint8_t((sum_a + 4) >> 3);
-}
-
-template <typename T>
-inline T majority8(const T* const r[4]) {
-  const T v = r[0][0];
-  if (r[0][1] == v && r[1][0] == v && r[1][1] == v && r[2][0] == v && r[2][1] == v &&
-      r[3][0] == v && r[3][1] == v) {
-    return v;
-  }
-  std::uint16_t c[8];
-  for (int k = 0; k < 4; ++k) {
-    c[2 * k] = r[k][0];
-    c[2 * k + 1] = r[k][1];
-  }
-  return T(reduce_majority(c, 8));
-}
-
-// Reduces output row y where all of its rows' children exist (2 * y + 1 < dy and nzc == 2),
-// for x in [0, full_x); the caller handles x >= full_x.
-void downsample_row_full(ChannelType type, const std::uint8_t* src, std::int64_t dx,
-                         std::int64_t dy, std::int64_t y, std::int64_t full_x, std::uint8_t* dst) {
-  const std::size_t bytes = channel_type_bytes(type);
-  const std::size_t plane = std::size_t(dx) * std::size_t(dy) * bytes;
-  const std::size_t row = std::size_t(dx) * bytes;
-  const std::uint8_t* base = src + std::size_t(2 * y) * row;
-  const std::uint8_t* rows[4] = {base, base + row, base + plane, base + plane + row};
-  switch (type) {
-    case ChannelType::kRgba8:
-      for (std::int64_t x = 0; x < full_x; ++x) {
-        const std::uint8_t* r[4];
-        for (int k = 0; k < 4; ++k)
-          r[k] = rows[k] + 8 * x;
-        reduce8_rgba(r, dst + 4 * x);
-      }
-      break;
-    case ChannelType::kInt16:
-      for (std::int64_t x = 0; x < full_x; ++x) {
-        std::int32_t s = 0;
-        for (int k = 0; k < 4; ++k) {
-          std::int16_t v[2];
-          std::memcpy(v, rows[k] + 4 * x, 4);
-          s += std::int32_t(v[0]) + v[1];
-        }
-        const std::int16_t m = std::int16_t((s + 4) >> 3);
-        std::memcpy(dst + 2 * x, &m, 2);
-      }
-      break;
-    case ChannelType::kUint8:
-      for (std::int64_t x = 0; x < full_x; ++x) {
-        const std::uint8_t* r[4];
-        for (int k = 0; k < 4; ++k)
-          r[k] = rows[k] + 2 * x;
-        dst[x] = majority8(r);
-      }
-      break;
-    case ChannelType::kUint16:
-      for (std::int64_t x = 0; x < full_x; ++x) {
-        std::uint16_t c[4][2];
-        const std::uint16_t* r[4];
-        for (int k = 0; k < 4; ++k) {
-          std::memcpy(c[k], rows[k] + 4 * x, 4);
-          r[k] = c[k];
-        }
-        const std::uint16_t m = majority8(r);
-        std::memcpy(dst + 2 * x, &m, 2);
-      }
-      break;
-  }
-}
-
-// Reduces 2x2x2 children of one output slice. `src` holds `nzc` (1 or 2) slices of dx*dy.
-void downsample_slice(ChannelType type, const std::uint8_t* src, int nzc, std::int64_t dx,
-                      std::int64_t dy, std::uint8_t* dst, int threads) {
-  const std::int64_t ox = ceil_div(dx, 2), oy = ceil_div(dy, 2);
-  const std::size_t bytes = channel_type_bytes(type);
-  auto row = [&](std::int64_t y) {
-    std::uint8_t* out = dst + std::size_t(y) * std::size_t(ox) * bytes;
-    std::int64_t x = 0;
-    if (nzc == 2 && 2 * y + 1 < dy) {
-      x = dx / 2;  // output voxels with both x children
-      downsample_row_full(type, src, dx, dy, y, x, out);
-    }
-    for (; x < ox; ++x)
-      reduce_generic(type, src, nzc, dx, dy, x, y, out + std::size_t(x) * bytes);
-  };
-  if (ox * oy < 65536 || threads <= 1) {
-    for (std::int64_t y = 0; y < oy; ++y)
-      row(y);
-  } else {
-    const std::int64_t chunk = 16;
-    parallel_for(ceil_div(oy, chunk), threads, [&](std::int64_t i) {
-      for (std::int64_t y = i * chunk; y < std::min(oy, (i + 1) * chunk); ++y)
-        row(y);
-    });
-  }
-}
-
 void validate(const WriterOptions& o) {
   for (int a = 0; a < 3; ++a) {
     if (o.dims[a] < 1 || o.dims[a] > kMaxDim) {
@@ -386,35 +212,10 @@ void validate(const WriterOptions& o) {
   }
 }
 
-nlohmann::json array3(const std::array<double, 3>& a) {
-  return nlohmann::json::array({a[0], a[1], a[2]});
-}
-nlohmann::json array3(const std::array<std::int64_t, 3>& a) {
-  return nlohmann::json::array({a[0], a[1], a[2]});
-}
-
-const char* downsample_rule(ChannelType type) {
-  switch (type) {
-    case ChannelType::kRgba8:
-      return "alpha_weighted_mean";
-    case ChannelType::kInt16:
-      return "mean";
-    default:
-      return "majority";
-  }
-}
-
 }  // namespace
 
 int Writer::level_count_for(const std::array<std::int64_t, 3>& dims, int brick_edge) {
-  int levels = 1;
-  std::array<std::int64_t, 3> d = dims;
-  while (d[0] > brick_edge || d[1] > brick_edge || d[2] > brick_edge) {
-    for (auto& v : d)
-      v = ceil_div(v, 2);
-    ++levels;
-  }
-  return levels;
+  return format::level_count_for(dims, brick_edge);
 }
 
 struct Writer::Impl {
@@ -448,6 +249,7 @@ struct Writer::Impl {
   std::vector<ChannelSpec> stored;
   AtomicFile file;
   int threads = 1;
+  VolumeGeometry geometry;
   std::vector<Level> levels;
   std::vector<IndexEntry> entries;
   std::vector<std::vector<std::uint32_t>> entry_labels;
@@ -482,16 +284,23 @@ struct Writer::Impl {
       stored.push_back(s);
     }
     const int e = opt.brick_edge;
-    const int n_levels = level_count_for(opt.dims, e);
-    std::array<std::int64_t, 3> d = opt.dims;
-    std::uint64_t base = 0;
+    auto g = make_geometry(opt.dims, opt.spacing_mm, opt.origin_mm, e, int(stored.size()),
+                           ReaderLimits{}.max_index_entries);
+    if (!g) {
+      throw std::invalid_argument(cat(path, ": the bricks exceed the reader's limit of ",
+                                      ReaderLimits{}.max_index_entries,
+                                      "; use a larger brick_edge"));
+    }
+    geometry = std::move(*g);
+    const int n_levels = int(geometry.levels.size());
+    const std::uint64_t base = geometry.index_count;
     for (int l = 0; l < n_levels; ++l) {
+      const LevelInfo& li = geometry.levels[std::size_t(l)];
+      const std::array<std::int64_t, 3>& d = li.dims;
       Level lv;
       lv.dims = d;
-      for (int a = 0; a < 3; ++a)
-        lv.grid[a] = ceil_div(d[a], e);
-      lv.index_base = base;
-      base += std::uint64_t(lv.grid[0] * lv.grid[1] * lv.grid[2]) * stored.size();
+      lv.grid = li.bricks;
+      lv.index_base = geometry.level_base[std::size_t(l)];
       const std::size_t plane = std::size_t(d[0]) * std::size_t(d[1]);
       for (const auto& s : stored) {
         lv.slab.emplace_back(plane * std::size_t(std::min<std::int64_t>(e, d[2])) *
@@ -502,13 +311,6 @@ struct Writer::Impl {
         }
       }
       levels.push_back(std::move(lv));
-      for (auto& v : d)
-        v = ceil_div(v, 2);
-    }
-    if (base > ReaderLimits{}.max_index_entries) {
-      throw std::invalid_argument(cat(path, ": ", base, " bricks exceed the reader's limit of ",
-                                      ReaderLimits{}.max_index_entries,
-                                      "; use a larger brick_edge"));
     }
     entries.resize(base);
     entry_labels.resize(base);
@@ -818,49 +620,15 @@ struct Writer::Impl {
   }
 
   nlohmann::json metadata() const {
-    using nlohmann::json;
-    json m = json::object();
-    m["format"] = "vispack";
-    m["version"] = json::array({kFormatMajor, kFormatMinor});
-    m["dims"] = array3(opt.dims);
-    m["spacing_mm"] = array3(opt.spacing_mm);
-    m["origin_mm"] = array3(opt.origin_mm);
-    m["axes"] = json::array({"x: image column, left to right", "y: image row, top to bottom",
-                             "z: slice index, increasing"});
-    m["memory_order"] = "x fastest, then y, then z; components interleaved";
-    m["brick_edge"] = opt.brick_edge;
-    m["brick_padding"] = "replicate";
-    json channels = json::array();
-    for (const auto& s : stored) {
-      channels.push_back({{"name", s.name},
-                          {"type", channel_type_name(s.type)},
-                          {"components", channel_type_components(s.type)},
-                          {"downsample", downsample_rule(s.type)}});
-    }
-    m["channels"] = channels;
-    json lv = json::array();
-    for (std::size_t l = 0; l < levels.size(); ++l) {
-      double f = double(std::int64_t(1) << l);
-      std::array<double, 3> sp{}, org{};
-      for (int a = 0; a < 3; ++a) {
-        sp[a] = opt.spacing_mm[a] * f;
-        org[a] = opt.origin_mm[a] + (f - 1) / 2 * opt.spacing_mm[a];
-      }
-      lv.push_back({{"dims", array3(levels[l].dims)},
-                    {"bricks", array3(levels[l].grid)},
-                    {"spacing_mm", array3(sp)},
-                    {"origin_mm", array3(org)}});
-    }
-    m["levels"] = lv;
-    json table = json::array();
-    for (const auto& l : opt.label_table) {
-      table.push_back({{"id", l.id},
-                       {"name", l.name},
-                       {"colour", json::array({l.colour[0], l.colour[1], l.colour[2]})}});
-    }
-    m["label_table"] = table;
-    m["extra"] = opt.extra_metadata.is_null() ? json::object() : opt.extra_metadata;
-    return m;
+    VolumeMetadata meta;
+    meta.dims = opt.dims;
+    meta.spacing_mm = opt.spacing_mm;
+    meta.origin_mm = opt.origin_mm;
+    meta.brick_edge = opt.brick_edge;
+    meta.channels = stored;
+    meta.label_table = opt.label_table;
+    meta.extra = opt.extra_metadata;
+    return metadata_json(meta, geometry);
   }
 };
 

@@ -1,6 +1,4 @@
 // vispack-extract FILE --channel NAME [--level L] (--z Z -o OUT.png|OUT.tif | -o OUT.nrrd)
-#include <unistd.h>
-
 #include <algorithm>
 #include <cstring>
 #include <filesystem>
@@ -11,8 +9,8 @@
 #include "vispack/common/nrrd.h"
 #include "vispack/format/reader.h"
 
-#ifdef VISPACK_HAVE_OIIO
-#include <OpenImageIO/imageio.h>
+#ifdef VISPACK_HAVE_IMAGE_IO
+#include "vispack/common/image_io.h"
 #endif
 
 using namespace vispack;
@@ -41,17 +39,20 @@ NrrdType nrrd_type(ChannelType t) {
   return NrrdType::kUint8;
 }
 
-// One slice as an 8- or 16-bit image, written to a temporary name (same extension, so the
-// image library picks the format) and renamed into place: complete or absent.
+// One slice as an 8- or 16-bit image through the project's one image writer (common's
+// image_io.h: encoded in memory, written atomically through AtomicFile).
 void write_slice_image(const std::string& out, const std::vector<std::uint8_t>& voxels,
                        ChannelType type, std::int64_t w, std::int64_t h) {
-#ifdef VISPACK_HAVE_OIIO
-  int channels = channel_type_components(type);
-  OIIO::TypeDesc fmt = OIIO::TypeDesc::UINT8;
-  std::vector<std::uint8_t> pixels = voxels;
+#ifdef VISPACK_HAVE_IMAGE_IO
+  ImageView view;
+  view.width = int(w);
+  view.height = int(h);
+  view.channels = channel_type_components(type);
+  view.bits = type == ChannelType::kInt16 || type == ChannelType::kUint16 ? 16 : 8;
+  std::vector<std::uint8_t> pixels;
   if (type == ChannelType::kInt16) {
     // CT: 16-bit unsigned grey = HU + 32768 (so -1024 HU is 31744, 0 HU is 32768).
-    fmt = OIIO::TypeDesc::UINT16;
+    pixels.resize(voxels.size());
     const std::size_t n = std::size_t(w * h);
     for (std::size_t i = 0; i < n; ++i) {
       std::int16_t hu;
@@ -59,27 +60,9 @@ void write_slice_image(const std::string& out, const std::vector<std::uint8_t>& 
       std::uint16_t v = std::uint16_t(std::int32_t(hu) + 32768);
       std::memcpy(pixels.data() + 2 * i, &v, 2);
     }
-  } else if (type == ChannelType::kUint16) {
-    fmt = OIIO::TypeDesc::UINT16;
   }
-  std::filesystem::path p(out);
-  std::string tmp = (p.parent_path() / (p.stem().string() + ".tmp-" + std::to_string(::getpid()) +
-                                        p.extension().string()))
-                        .string();
-  auto image = OIIO::ImageOutput::create(out);
-  if (!image) throw IoError(cat(out, ": no image writer for this extension: ", OIIO::geterror()));
-  OIIO::ImageSpec spec(int(w), int(h), channels, fmt);
-  if (!image->open(tmp, spec) || !image->write_image(fmt, pixels.data()) || !image->close()) {
-    std::string err = image->geterror();
-    std::filesystem::remove(tmp);
-    throw IoError(cat(out, ": cannot write image: ", err));
-  }
-  std::error_code ec;
-  std::filesystem::rename(tmp, out, ec);
-  if (ec) {
-    std::filesystem::remove(tmp);
-    throw IoError(cat(out, ": cannot rename the temporary file: ", ec.message()));
-  }
+  view.pixels = pixels.empty() ? voxels.data() : pixels.data();
+  write_image_file(out, view);
 #else
   throw UsageError(
       cat(out, ": this build has no OpenImageIO; extract a whole channel with -o OUT.nrrd"));

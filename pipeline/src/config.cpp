@@ -234,8 +234,9 @@ const std::vector<std::pair<std::string, std::vector<std::string>>>& known_keys(
       {"ct.raw", {"width", "height", "channels", "layout", "bits", "endian", "header_bytes"}},
       {"seg.raw", {"width", "height", "channels", "layout", "bits", "endian", "header_bytes"}},
       {"register",
-       {"enabled", "method", "ecc_scale", "ecc_iterations", "jump_px", "ct_initial", "ct_refine"}},
-      {"register.ct_initial", {"scale", "rotation_deg", "dx_px", "dy_px"}},
+       {"enabled", "method", "ecc_scale", "ecc_iterations", "jump_px", "output_frame", "anchor",
+        "overrides"}},
+      {"register.output_frame", {"rotation_deg", "dx_px", "dy_px"}},
       {"mask", {"hu_threshold", "opening_px", "refine_gel", "gel_colour", "gel_distance"}},
       {"pack", {"brick_edge", "zstd_level", "downsample", "threads"}},
       {"vdb", {"enabled"}},
@@ -375,17 +376,24 @@ Config load_config(const std::string& path) {
     r.ecc_scale = s.number("ecc_scale", 0.5, 0.0, 1.0, true);
     r.ecc_iterations = int(s.integer("ecc_iterations", 50, 1, 10000));
     r.jump_px = s.number("jump_px", 6.0, 0.0, 1e6, true);
-    if (s.has("ct_initial")) {
-      Section c = s.child("ct_initial");
-      r.ct_initial.scale = c.number("scale", 1.0, 0.0, 1e3, true);
-      r.ct_initial.rotation_deg = c.number("rotation_deg", 0.0, -360.0, 360.0);
-      r.ct_initial.dx_px = c.number("dx_px", 0.0, -1e6, 1e6);
-      r.ct_initial.dy_px = c.number("dy_px", 0.0, -1e6, 1e6);
-      c.finish();
+    if (s.has("output_frame")) {
+      Section f = s.child("output_frame");
+      r.output_frame.rotation_deg = f.number("rotation_deg", 0.0, -360.0, 360.0);
+      r.output_frame.dx_px = f.number("dx_px", 0.0, -1e6, 1e6);
+      r.output_frame.dy_px = f.number("dy_px", 0.0, -1e6, 1e6);
+      f.finish();
     } else {
-      s.find("ct_initial");
+      s.find("output_frame");
     }
-    r.ct_refine = s.boolean("ct_refine", true);
+    r.anchor = s.choice("anchor", {"auto", "ct", "fiducials", "none"}, "auto");
+    if (r.anchor == "ct" && !config.ct)
+      s.fail("anchor", "\"ct\" needs a \"ct\" section (CT slices)");
+    if (s.has("overrides")) {
+      r.overrides = resolve(base, s.string("overrides", std::nullopt));
+      require_file(s, "overrides", r.overrides);
+    } else {
+      s.find("overrides");
+    }
     s.finish();
   }
   {
@@ -433,6 +441,100 @@ Config load_config(const std::string& path) {
   check_outputs_apart_from_inputs(config, top);
   top.finish();
   return config;
+}
+
+namespace {
+
+// `path` relative to `base` when both are absolute and a relative form exists; else as is.
+std::string relative_to(const std::string& path, const std::string& base) {
+  if (path.empty() || base.empty()) return path;
+  const fs::path p(path), b(base);
+  if (!p.is_absolute() || !b.is_absolute()) return path;
+  const fs::path rel = p.lexically_relative(b);
+  return rel.empty() ? path : rel.generic_string();
+}
+
+json raw_to_json(const RawLayout& raw) {
+  return {{"width", raw.width},
+          {"height", raw.height},
+          {"channels", raw.channels},
+          {"layout", raw.planar ? "planar" : "interleaved"},
+          {"bits", raw.bits},
+          {"endian", raw.big_endian ? "big" : "little"},
+          {"header_bytes", raw.header_bytes}};
+}
+
+json source_to_json(const SliceSource& source, const std::string& base) {
+  json out = {{"dir", relative_to(source.dir, base)}, {"pattern", source.pattern}};
+  if (source.raw) out["raw"] = raw_to_json(*source.raw);
+  return out;
+}
+
+}  // namespace
+
+json config_to_json(const Config& config) {
+  return config_to_json(config, fs::path(config.path).parent_path().string());
+}
+
+json config_to_json(const Config& config, const std::string& base_dir) {
+  const std::string& base = base_dir;
+  json out = json::object();
+  out["name"] = config.name;
+  out["work_dir"] = relative_to(config.work_dir, base);
+  out["output"] = relative_to(config.output, base);
+  if (config.vdb.enabled && !config.vdb_output.empty())
+    out["vdb_output"] = relative_to(config.vdb_output, base);
+  out["spacing_mm"] = config.spacing_mm;
+  out["rgb"] = source_to_json(config.rgb, base);
+  if (config.ct) {
+    const CtSource& ct = *config.ct;
+    json c = source_to_json(ct, base);
+    c["pixel_spacing_mm"] = ct.pixel_spacing_mm;
+    c["slope"] = ct.slope;
+    c["intercept"] = ct.intercept;
+    c["slice_offset"] = ct.slice_offset;
+    out["ct"] = c;
+  }
+  if (config.seg) {
+    const SegSource& seg = *config.seg;
+    json s = source_to_json(seg, base);
+    if (!seg.palette.empty()) s["palette"] = relative_to(seg.palette, base);
+    s["mode"] = seg.mode;
+    s["tolerance"] = seg.tolerance;
+    s["strict"] = seg.strict;
+    if (!seg.id_map.empty()) s["id_map"] = relative_to(seg.id_map, base);
+    out["seg"] = s;
+  }
+  const RegisterOptions& r = config.registration;
+  out["register"] = {{"enabled", r.enabled},
+                     {"method", r.method},
+                     {"ecc_scale", r.ecc_scale},
+                     {"ecc_iterations", r.ecc_iterations},
+                     {"jump_px", r.jump_px},
+                     {"output_frame",
+                      {{"rotation_deg", r.output_frame.rotation_deg},
+                       {"dx_px", r.output_frame.dx_px},
+                       {"dy_px", r.output_frame.dy_px}}},
+                     {"anchor", r.anchor}};
+  if (!r.overrides.empty()) out["register"]["overrides"] = relative_to(r.overrides, base);
+  const MaskOptions& m = config.mask;
+  json mask = {{"hu_threshold", m.hu_threshold},
+               {"opening_px", m.opening_px},
+               {"refine_gel", m.refine_gel},
+               {"gel_distance", m.gel_distance}};
+  if (m.gel_colour) mask["gel_colour"] = *m.gel_colour;
+  out["mask"] = mask;
+  out["pack"] = {{"brick_edge", config.pack.brick_edge},
+                 {"zstd_level", config.pack.zstd_level},
+                 {"downsample", config.pack.downsample},
+                 {"threads", config.pack.threads}};
+  out["vdb"] = {{"enabled", config.vdb.enabled}};
+  return out;
+}
+
+void write_config(const std::string& path, const Config& config) {
+  const std::string base = fs::path(fs::absolute(path)).lexically_normal().parent_path().string();
+  write_file_atomic(path, config_to_json(config, base).dump(2) + "\n");
 }
 
 std::string config_section_hash(const Config& config, const std::vector<std::string>& sections) {

@@ -1,4 +1,6 @@
 #include "vispack/pipeline/labels.h"
+#include "vispack/pipeline/labels_stage.h"
+#include "vispack/pipeline/work_layout.h"
 
 #include <algorithm>
 #include <cmath>
@@ -323,7 +325,7 @@ cv::Mat map_ids(const cv::Mat& seg, const std::unordered_map<std::uint32_t, std:
 cv::Mat resample_labels_nearest(const cv::Mat& labels, const SliceTransform& t,
                                 const std::array<double, 2>& center_px, cv::Size out_size) {
   CV_Assert(labels.type() == CV_16UC1);
-  cv::Matx23d m = output_to_observed(t, center_px);
+  cv::Matx23d m = rigid_matrix(t.rigid, {center_px[0], center_px[1]});
   cv::Mat out(out_size, CV_16UC1, cv::Scalar(0));
   for (int y = 0; y < out_size.height; ++y) {
     std::uint16_t* o = out.ptr<std::uint16_t>(y);

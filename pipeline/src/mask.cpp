@@ -8,7 +8,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "vispack/common/error.h"
-#include "vispack/pipeline/rigid.h"
+#include "vispack/pipeline/transforms.h"
 
 namespace vispack::pipeline {
 namespace {
@@ -18,6 +18,52 @@ constexpr double kGelBandPx = 12.0;
 
 cv::Mat disc(int radius) {
   return cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * radius + 1, 2 * radius + 1));
+}
+
+// The edge levels image (CV_8UC1, CT resolution) carried onto the output grid by one linear
+// warp. Outside the body 0; along the body's edge (pixels 8-adjacent to the other side) the HU
+// mapped linearly, kLevelEdge at `level` and ±kLevelEdge per kLevelSpanHu, clamped so that body
+// pixels stay ≥ kLevelEdge and the others below it; deeper body pixels kLevelBand, and those
+// more than band_ct CT pixels deep kLevelCore. After the warp: ≥ kLevelEdge is body (the
+// linearly interpolated HU crosses `level` where the value crosses kLevelEdge), and body below
+// kLevelBandEnd lies in the edge band.
+constexpr int kLevelEdge = 85, kLevelBand = 200, kLevelCore = 255, kLevelBandEnd = 228;
+constexpr double kLevelSpanHu = 500.0;
+
+cv::Mat edge_levels(const cv::Mat& body, const cv::Mat& hu, double level, int band_ct) {
+  cv::Mat levels = cv::Mat::zeros(body.size(), CV_8UC1);
+  // Only the body's bounding box grown by 2 (its outside neighbours, and zeros for the erosions
+  // to see) is touched.
+  const cv::Rect bounds = cv::boundingRect(body);
+  if (bounds.empty()) return levels;
+  const cv::Rect box = cv::Rect(bounds.x - 2, bounds.y - 2, bounds.width + 4, bounds.height + 4) &
+                       cv::Rect(0, 0, body.cols, body.rows);
+  const cv::Mat b = body(box);
+  cv::Mat inner, outer, core;
+  cv::erode(b, inner, cv::Mat(), cv::Point(-1, -1), 1, cv::BORDER_CONSTANT, cv::Scalar(0));
+  cv::dilate(b, outer, cv::Mat());
+  cv::erode(b, core, disc(band_ct), cv::Point(-1, -1), 1, cv::BORDER_CONSTANT, cv::Scalar(0));
+  const double gain = kLevelEdge / kLevelSpanHu;
+  for (int y = 0; y < box.height; ++y) {
+    const std::uint8_t* bp = b.ptr<std::uint8_t>(y);
+    const std::uint8_t* in = inner.ptr<std::uint8_t>(y);
+    const std::uint8_t* out = outer.ptr<std::uint8_t>(y);
+    const std::uint8_t* c = core.ptr<std::uint8_t>(y);
+    const float* h = hu.ptr<float>(box.y + y) + box.x;
+    std::uint8_t* l = levels.ptr<std::uint8_t>(box.y + y) + box.x;
+    for (int x = 0; x < box.width; ++x) {
+      if (c[x]) {
+        l[x] = kLevelCore;
+      } else if (in[x]) {
+        l[x] = kLevelBand;
+      } else if (out[x]) {
+        const double v = kLevelEdge + (double(h[x]) - level) * gain;
+        l[x] = bp[x] ? std::uint8_t(std::clamp(v, double(kLevelEdge + 1), double(2 * kLevelEdge)))
+                     : std::uint8_t(std::clamp(v, 0.0, double(kLevelEdge - 1)));
+      }
+    }
+  }
+  return levels;
 }
 
 // The output-grid rectangle the CT mask can touch, grown by `margin` and clipped to `size`.
@@ -39,113 +85,11 @@ cv::Rect mapped_bounds(const cv::Mat& ct_mask, const cv::Matx23d& out_to_ct, cv:
   return r & cv::Rect(0, 0, size.width, size.height);
 }
 
-cv::Mat to_hu_float(const cv::Mat& ct_hu) {
-  if (ct_hu.type() == CV_32FC1) return ct_hu;
-  if (ct_hu.channels() != 1) throw InputError(cat("CT slice has ", ct_hu.channels(), " channels"));
-  cv::Mat f;
-  ct_hu.convertTo(f, CV_32F);
-  return f;
-}
-
-void check_rgb(const cv::Mat& rgb, const char* what) {
-  if (rgb.empty() || rgb.type() != CV_8UC3)
-    throw InputError(cat(what, ": expected an 8-bit RGB slice, got type ", rgb.type()));
-}
-
 }  // namespace
-
-cv::Mat largest_component(const cv::Mat& mask) {
-  cv::Mat labels, stats, centroids;
-  const int n = cv::connectedComponentsWithStats(mask, labels, stats, centroids, 8, CV_32S);
-  cv::Mat out = cv::Mat::zeros(mask.size(), CV_8UC1);
-  if (n <= 1) return out;
-  int best = 1;
-  for (int i = 2; i < n; ++i)
-    if (stats.at<int>(i, cv::CC_STAT_AREA) > stats.at<int>(best, cv::CC_STAT_AREA)) best = i;
-  if (n == 2) return mask > 0;
-  return labels == best;
-}
-
-cv::Mat fill_holes(const cv::Mat& mask) {
-  // Flood the background from a 1-pixel frame around the image; what stays 0 is a hole.
-  cv::Mat padded;
-  cv::copyMakeBorder(mask > 0, padded, 1, 1, 1, 1, cv::BORDER_CONSTANT, cv::Scalar(0));
-  cv::floodFill(padded, cv::Point(0, 0), cv::Scalar(128), nullptr, cv::Scalar(0), cv::Scalar(0), 4);
-  cv::Mat inner = padded(cv::Rect(1, 1, mask.cols, mask.rows));
-  return inner != 128;
-}
-
-cv::Mat open_disc(const cv::Mat& mask, int radius) {
-  if (radius <= 0) return mask.clone();
-  cv::Mat out;
-  cv::morphologyEx(mask, out, cv::MORPH_OPEN, disc(radius));
-  return out;
-}
-
-cv::Mat ct_body_mask(const cv::Mat& ct_hu, double hu_threshold) {
-  cv::Mat hu = to_hu_float(ct_hu);
-  cv::Mat raw = hu > hu_threshold;
-  // The opening cuts thin bridges (head-holder, table); the largest component is the body.
-  cv::Mat body = largest_component(open_disc(raw, kCtDetachPx));
-  if (cv::countNonZero(body) == 0) return body;
-  // Grow back what the opening shaved off the body's own edge, only within its radius + 1.
-  cv::Mat grown;
-  cv::dilate(body, grown,
-             cv::getStructuringElement(cv::MORPH_ELLIPSE,
-                                       cv::Size(2 * kCtDetachPx + 3, 2 * kCtDetachPx + 3)));
-  return fill_holes(largest_component(raw & grown));
-}
-
-cv::Vec3f estimate_gel_colour(const cv::Mat& rgb) {
-  check_rgb(rgb, "estimate_gel_colour");
-  const int band = std::max(1, std::min({4, rgb.cols / 4, rgb.rows / 4}));
-  std::vector<int> channel[3];
-  for (int y = 0; y < rgb.rows; ++y) {
-    const cv::Vec3b* row = rgb.ptr<cv::Vec3b>(y);
-    const bool edge_row = y < band || y >= rgb.rows - band;
-    for (int x = 0; x < rgb.cols; ++x) {
-      if (!edge_row && x >= band && x < rgb.cols - band) {
-        x = rgb.cols - band - 1;
-        continue;
-      }
-      for (int c = 0; c < 3; ++c)
-        channel[c].push_back(row[x][c]);
-    }
-  }
-  cv::Vec3f gel;
-  for (int c = 0; c < 3; ++c) {
-    auto mid = channel[c].begin() + channel[c].size() / 2;
-    std::nth_element(channel[c].begin(), mid, channel[c].end());
-    gel[c] = float(*mid);
-  }
-  return gel;
-}
-
-cv::Mat non_gel(const cv::Mat& rgb, const cv::Vec3f& gel, double distance) {
-  check_rgb(rgb, "non_gel");
-  cv::Mat out(rgb.size(), CV_8UC1);
-  const int g0 = int(std::lround(gel[0])), g1 = int(std::lround(gel[1])),
-            g2 = int(std::lround(gel[2]));
-  const int limit = int(std::floor(distance * distance));
-  for (int y = 0; y < rgb.rows; ++y) {
-    const cv::Vec3b* in = rgb.ptr<cv::Vec3b>(y);
-    std::uint8_t* o = out.ptr<std::uint8_t>(y);
-    for (int x = 0; x < rgb.cols; ++x) {
-      const int a = in[x][0] - g0, b = in[x][1] - g1, c = in[x][2] - g2;
-      o[x] = (a * a + b * b + c * c > limit) ? 255 : 0;
-    }
-  }
-  return out;
-}
-
-cv::Mat colour_body_mask(const cv::Mat& rgb, const cv::Vec3f& gel, double distance,
-                         int opening_px) {
-  return fill_holes(largest_component(open_disc(non_gel(rgb, gel, distance), opening_px)));
-}
 
 cv::Mat remove_edge_gel(const cv::Mat& mask, const cv::Mat& rgb, const cv::Vec3f& gel,
                         double distance, const cv::Mat& band, cv::Rect* removed) {
-  check_rgb(rgb, "remove_edge_gel");
+  require_rgb_slice(rgb, "remove_edge_gel");
   if (mask.size() != rgb.size() || mask.type() != CV_8UC1)
     throw Error("remove_edge_gel: mask and slice differ in size (or the mask is not 8-bit)");
   if (!band.empty() && (band.size() != mask.size() || band.type() != CV_8UC1))
@@ -219,28 +163,25 @@ cv::Mat remove_edge_gel(const cv::Mat& mask, const cv::Mat& rgb, const cv::Vec3f
   return out;
 }
 
+double mask_edge_level_hu(double hu_threshold) {
+  return std::min(hu_threshold, kAirTissueMidpointHu);
+}
+
 cv::Mat resample_ct(const cv::Mat& ct_hu, const cv::Matx23d& out_to_ct, cv::Size size) {
   cv::Mat out;
-  cv::warpAffine(to_hu_float(ct_hu), out, cv::Mat(out_to_ct), size,
+  cv::warpAffine(ct_hu_float(ct_hu), out, cv::Mat(out_to_ct), size,
                  cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_CONSTANT, cv::Scalar(-1024));
   return out;
 }
 
-cv::Mat resample_mask(const cv::Mat& mask, const cv::Matx23d& out_to_ct, cv::Size size) {
-  cv::Mat out;
-  cv::warpAffine(mask, out, cv::Mat(out_to_ct), size, cv::INTER_LINEAR | cv::WARP_INVERSE_MAP,
-                 cv::BORDER_CONSTANT, cv::Scalar(0));
-  return out >= 128;
-}
-
 cv::Mat encode_hu16(const cv::Mat& hu) {
   cv::Mat out;
-  to_hu_float(hu).convertTo(out, CV_16U, 1.0, 32768.0);  // saturating: clamps to 0..65535
+  ct_hu_float(hu).convertTo(out, CV_16U, 1.0, 32768.0);  // saturating: clamps to 0..65535
   return out;
 }
 
 cv::Mat draw_mask_overlay(const cv::Mat& rgb, const cv::Mat& mask) {
-  check_rgb(rgb, "draw_mask_overlay");
+  require_rgb_slice(rgb, "draw_mask_overlay");
   cv::Mat eroded;
   cv::erode(mask, eroded, cv::Mat(), cv::Point(-1, -1), 1, cv::BORDER_CONSTANT, cv::Scalar(0));
   cv::Mat outline = mask & ~eroded;
@@ -251,7 +192,7 @@ cv::Mat draw_mask_overlay(const cv::Mat& rgb, const cv::Mat& mask) {
 
 MaskSlice compute_mask(const cv::Mat& rgb, const cv::Mat* ct_hu, const cv::Matx23d& out_to_ct,
                        const MaskOptions& options) {
-  check_rgb(rgb, "compute_mask");
+  require_rgb_slice(rgb, "compute_mask");
   MaskSlice result;
   result.gel = options.gel_colour
                    ? cv::Vec3f(float((*options.gel_colour)[0]), float((*options.gel_colour)[1]),
@@ -261,7 +202,9 @@ MaskSlice compute_mask(const cv::Mat& rgb, const cv::Mat* ct_hu, const cv::Matx2
   if (!ct_hu) {
     result.mask = colour_body_mask(rgb, result.gel, options.gel_distance, options.opening_px);
   } else {
-    cv::Mat ct_mask = ct_body_mask(*ct_hu, options.hu_threshold);
+    const cv::Mat hu = ct_hu_float(*ct_hu);
+    const double level = mask_edge_level_hu(options.hu_threshold);
+    cv::Mat ct_mask = ct_body_mask(hu, level);
     result.mask = cv::Mat::zeros(size, CV_8UC1);
     // Work inside the rectangle the CT body can reach (plus a frame of outside pixels).
     const int margin = options.opening_px + 4;
@@ -272,30 +215,23 @@ MaskSlice compute_mask(const cv::Mat& rgb, const cv::Mat* ct_hu, const cv::Matx2
       // Output pixels per CT pixel.
       const double scale = 1.0 / std::sqrt(std::abs(out_to_ct(0, 0) * out_to_ct(1, 1) -
                                                     out_to_ct(0, 1) * out_to_ct(1, 0)));
+      const int band_ct = std::max(1, int(std::ceil(kGelBandPx / scale)));
+      cv::Mat warped;
+      cv::warpAffine(edge_levels(ct_mask, hu, level, band_ct), warped, cv::Mat(roi_to_ct),
+                     roi.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_CONSTANT,
+                     cv::Scalar(0));
+      cv::Mat carried(roi.size(), CV_8UC1), band(roi.size(), CV_8UC1);
+      for (int y = 0; y < roi.height; ++y) {
+        const std::uint8_t* in = warped.ptr<std::uint8_t>(y);
+        std::uint8_t* mo = carried.ptr<std::uint8_t>(y);
+        std::uint8_t* bo = band.ptr<std::uint8_t>(y);
+        for (int x = 0; x < roi.width; ++x) {
+          mo[x] = in[x] >= kLevelEdge ? 255 : 0;
+          bo[x] = (in[x] >= kLevelEdge && in[x] < kLevelBandEnd) ? 255 : 0;
+        }
+      }
       cv::Mat m;
       if (options.refine_gel) {
-        // The CT mask is already clean (one component, no holes). Its edge band (kGelBandPx
-        // output pixels deep, at least one CT pixel) is carried along in the same resampling:
-        // 255 = core, 128 = band, 0 = outside; linear, then thresholds half way.
-        const int band_ct = std::max(1, int(std::ceil(kGelBandPx / scale)));
-        cv::Mat core;
-        cv::erode(ct_mask, core, disc(band_ct), cv::Point(-1, -1), 1, cv::BORDER_CONSTANT,
-                  cv::Scalar(0));
-        cv::Mat levels = ct_mask / 2;
-        levels.setTo(255, core);
-        cv::Mat warped;
-        cv::warpAffine(levels, warped, cv::Mat(roi_to_ct), roi.size(),
-                       cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_CONSTANT, cv::Scalar(0));
-        cv::Mat carried(roi.size(), CV_8UC1), band(roi.size(), CV_8UC1);
-        for (int y = 0; y < roi.height; ++y) {
-          const std::uint8_t* in = warped.ptr<std::uint8_t>(y);
-          std::uint8_t* mo = carried.ptr<std::uint8_t>(y);
-          std::uint8_t* bo = band.ptr<std::uint8_t>(y);
-          for (int x = 0; x < roi.width; ++x) {
-            mo[x] = in[x] >= 64 ? 255 : 0;
-            bo[x] = (in[x] >= 64 && in[x] < 192) ? 255 : 0;
-          }
-        }
         cv::Rect removed;
         m = remove_edge_gel(carried, rgb(roi), result.gel, options.gel_distance, band, &removed);
         // Removing gel connected to the outside cannot open holes; the opening smooths the
@@ -311,8 +247,7 @@ MaskSlice compute_mask(const cv::Mat& rgb, const cv::Mat* ct_hu, const cv::Matx2
           opened.copyTo(m(box));
         }
       } else {
-        m = resample_mask(ct_mask, roi_to_ct, roi.size());
-        m = fill_holes(largest_component(open_disc(m, options.opening_px)));
+        m = fill_holes(largest_component(open_disc(carried, options.opening_px)));
       }
       result.coverage = double(cv::countNonZero(m)) / double(size.area());
       m.copyTo(result.mask(roi));

@@ -11,7 +11,11 @@
 #include "vispack/common/error.h"
 #include "vispack/common/parallel.h"
 #include "vispack/pipeline/mask.h"
-#include "vispack/pipeline/rigid.h"
+#include "vispack/pipeline/mask_stage.h"
+#include "vispack/pipeline/opencv_threads.h"
+#include "vispack/pipeline/register/ct_anchor.h"
+#include "vispack/pipeline/work_layout.h"
+#include "vispack/pipeline/transforms.h"
 #include "vispack/pipeline/slice_io.h"
 
 namespace vispack::pipeline {
@@ -70,12 +74,8 @@ StageResult run_mask_stage(const Config& config, const StageOptions& options) {
       if (raw.channels() != 1) throw InputError(cat(ct_path, ": CT slice must be single-channel"));
       bytes += raw.total() * raw.elemSize();
       raw.convertTo(ct_hu, CV_32F, config.ct->slope, config.ct->intercept);
-      const CtToRgb c = st.ct_to_rgb ? *st.ct_to_rgb
-                                     : CtToRgb{config.registration.ct_initial.scale,
-                                               config.registration.ct_initial.rotation_deg,
-                                               config.registration.ct_initial.dx_px,
-                                               config.registration.ct_initial.dy_px};
-      out_to_ct = output_to_ct(c, st.center_px, {(ct_hu.cols - 1) / 2.0, (ct_hu.rows - 1) / 2.0});
+      const Similarity c = st.ct_to_rgb ? *st.ct_to_rgb : defined_ct_to_rgb(config);
+      out_to_ct = output_to_ct(c, st.centre(), image_centre(ct_hu.size()));
     } else {
       ++colour_only;
     }

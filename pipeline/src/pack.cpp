@@ -9,11 +9,15 @@
 
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
+#include "vispack/common/test_pause.h"
 #include "vispack/common/hash.h"
+#include "vispack/format/downsample.h"
 #include "vispack/format/writer.h"
 #include "vispack/pipeline/labels.h"
+#include "vispack/pipeline/register/solve.h"
 #include "vispack/pipeline/slice_io.h"
 #include "vispack/pipeline/version.h"
+#include "vispack/pipeline/work_layout.h"
 
 namespace vispack::pipeline {
 
@@ -22,23 +26,8 @@ using nlohmann::json;
 
 namespace {
 
-cv::Mat read_intermediate(const std::string& path, int type, cv::Size size) {
-  if (!fs::exists(path))
-    throw InputError(cat(path, ": missing intermediate (run the earlier stages first)"));
-  cv::Mat m = read_slice(path);
-  if (m.type() != type)
-    throw InputError(cat(path, ": unexpected pixel type (expected ",
-                         type == CV_8UC3   ? "8-bit RGB"
-                         : type == CV_8UC1 ? "8-bit grey"
-                                           : "16-bit grey",
-                         ")"));
-  if (m.size() != size)
-    throw InputError(
-        cat(path, ": is ", m.cols, "x", m.rows, ", expected ", size.width, "x", size.height));
-  return m;
-}
-
-// Most frequent ID per f x f block (ties: smaller ID).
+// Most frequent ID per f x f block, by the format core's majority rule (the pyramid's rule;
+// tie-break in vispack/format/downsample.h: non-zero over 0, then the smallest ID).
 cv::Mat majority_downsample(const cv::Mat& labels, int f, cv::Size out) {
   cv::Mat result(out, CV_16UC1, cv::Scalar(0));
   std::vector<std::uint16_t> block;
@@ -48,17 +37,7 @@ cv::Mat majority_downsample(const cv::Mat& labels, int f, cv::Size out) {
       for (int dy = 0; dy < f && y * f + dy < labels.rows; ++dy)
         for (int dx = 0; dx < f && x * f + dx < labels.cols; ++dx)
           block.push_back(labels.at<std::uint16_t>(y * f + dy, x * f + dx));
-      std::sort(block.begin(), block.end());
-      std::uint16_t best = 0;
-      std::size_t best_n = 0;
-      for (std::size_t i = 0; i < block.size();) {
-        std::size_t j = i;
-        while (j < block.size() && block[j] == block[i])
-          ++j;
-        if (j - i > best_n) best_n = j - i, best = block[i];
-        i = j;
-      }
-      result.at<std::uint16_t>(y, x) = best;
+      result.at<std::uint16_t>(y, x) = format::reduce_majority(block.data(), block.size());
     }
   return result;
 }
@@ -146,6 +125,11 @@ StageResult run_pack_stage(const Config& config, const StageOptions& options) {
   for (const auto& s : stack)
     names += cat(fs::path(s.path).filename().string(), ":", fs::file_size(s.path), "\n");
   json raw_config = config.raw_json;
+  // A person's registration corrections (register.overrides) travel with the volume.
+  json overrides = json::array();
+  if (!config.registration.overrides.empty())
+    for (const auto& o : read_overrides(config.registration.overrides, n))
+      overrides.push_back(to_json(o));
   wo.extra_metadata = {
       {"name", config.name},
       {"slices",
@@ -156,7 +140,11 @@ StageResult run_pack_stage(const Config& config, const StageOptions& options) {
         {"black", black},
         {"duplicated", duplicated}}},
       {"registration",
-       {{"mean_quality", n ? q_sum / n : 0.0}, {"min_quality", q_min}, {"jumps", jumps}}},
+       {{"mean_quality", n ? q_sum / n : 0.0},
+        {"min_quality", q_min},
+        {"jumps", jumps},
+        {"frame", transforms.extra.value("frame", "slice0")},
+        {"overrides", overrides}}},
       {"downsample", f},
       {"alpha", "body mask coverage (work/mask), 0..255"},
       {"provenance",
@@ -168,6 +156,9 @@ StageResult run_pack_stage(const Config& config, const StageOptions& options) {
          {{"transforms", hash_of_file_or_empty(tpath)},
           {"palette", has_labels ? hash_of_file_or_empty(config.seg->palette) : ""},
           {"id_map", has_labels ? hash_of_file_or_empty(config.seg->id_map) : ""},
+          {"overrides", config.registration.overrides.empty()
+                            ? std::string()
+                            : hash_of_file_or_empty(config.registration.overrides)},
           {"rgb_names_sizes", hex64(xxh64(names.data(), names.size()))}}}}}};
 
   make_directories(fs::path(config.output).parent_path().string());
@@ -179,9 +170,9 @@ StageResult run_pack_stage(const Config& config, const StageOptions& options) {
   std::uint64_t bytes = 0;
   std::set<std::uint16_t> ids_seen;
   for (int k = 0; k < n; ++k) {
-    cv::Mat rgb = read_intermediate(registered_rgb_path(config, k), CV_8UC3, full);
-    cv::Mat mask = read_intermediate(mask_path(config, k), CV_8UC1, full);
-    bytes += rgb.total() * 3 + mask.total();
+    Intermediates in = read_intermediates(config, k, full);
+    bytes += in.bytes;
+    cv::Mat rgb = in.rgb, mask = in.mask;
     if (f > 1) {
       cv::resize(rgb, rgb, out_size, 0, 0, cv::INTER_AREA);
       cv::resize(mask, mask, out_size, 0, 0, cv::INTER_AREA);
@@ -199,10 +190,8 @@ StageResult run_pack_stage(const Config& config, const StageOptions& options) {
     }
     std::vector<const void*> channels = {rgba.data()};
     if (has_ct) {
-      cv::Mat c = read_intermediate(mask_ct_path(config, k), CV_16UC1, full);
-      bytes += c.total() * 2;
       cv::Mat hu;
-      c.convertTo(hu, CV_32F, 1.0, -32768.0);
+      in.ct.convertTo(hu, CV_32F, 1.0, -32768.0);
       if (f > 1) cv::resize(hu, hu, out_size, 0, 0, cv::INTER_AREA);
       for (int y = 0; y < out_size.height; ++y) {
         const float* h = hu.ptr<float>(y);
@@ -212,8 +201,7 @@ StageResult run_pack_stage(const Config& config, const StageOptions& options) {
       channels.push_back(ct.data());
     }
     if (has_labels) {
-      cv::Mat l = read_intermediate(labels_path(config, k), CV_16UC1, full);
-      bytes += l.total() * 2;
+      cv::Mat l = in.labels;
       if (f > 1) l = majority_downsample(l, f, out_size);
       for (int y = 0; y < out_size.height; ++y) {
         const std::uint16_t* row = l.ptr<std::uint16_t>(y);
@@ -224,6 +212,7 @@ StageResult run_pack_stage(const Config& config, const StageOptions& options) {
       channels.push_back(labels.data());
     }
     writer.append_slice(channels);
+    if (test_pause_enabled()) test_pause_point(cat("append:pack:", k));  // test_pause.h
     run.add_bytes(0);
   }
   writer.finish();

@@ -1,9 +1,10 @@
-// The vispack-register stage driver: pair records (sharded), chaining, CT alignment, registered
-// slices. See register.h for how shards combine.
+// The vispack-register stage driver: per-slice records (pairs + CT anchor, sharded), the global
+// solve, registered slices and QC pictures. See register.h for how shards combine.
 #include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 
 #include <opencv2/core/utility.hpp>
@@ -13,33 +14,48 @@
 #include "vispack/common/error.h"
 #include "vispack/common/parallel.h"
 #include "vispack/common/progress.h"
-#include "vispack/pipeline/mask.h"
+#include "vispack/pipeline/opencv_threads.h"
 #include "vispack/pipeline/register.h"
+#include "vispack/pipeline/register_stage.h"
 #include "vispack/pipeline/slice_io.h"
+#include "vispack/pipeline/work_layout.h"
 
 namespace vispack::pipeline {
 namespace {
 
 namespace fs = std::filesystem;
 
-constexpr double kOutlineDistance = 80.0;  // colour distance from the gel of the RGB outline
-
 std::string pairs_path(const Config& config, int k) {
   return slice_output_path(config, "register", "pairs/pairs", k, "json");
 }
 
-// Fingerprint of what the pair record of slice k depends on: the register config section and
-// the files k−4..k.
-std::string pair_fingerprint(const Config& config, const std::vector<SliceFile>& files, int k) {
+// The CT slice on output slice k, if the CT stack has one.
+const SliceFile* ct_file(const Config& config, const std::vector<SliceFile>& ct_files, int k) {
+  if (!config.ct) return nullptr;
+  const int ct_k = k + config.ct->slice_offset;
+  if (ct_k < 0 || ct_k >= int(ct_files.size())) return nullptr;
+  return &ct_files[std::size_t(ct_k)];
+}
+
+// Fingerprint of what the record of slice k depends on: the register config section, the
+// anchor's inputs (ct section, output frame, hu threshold) and the files k−4..k (+ CT slice k).
+std::string pair_fingerprint(const Config& config, const std::vector<SliceFile>& files,
+                             const std::vector<SliceFile>& ct_files, bool anchored, int k) {
   Fingerprint fp;
-  fp.text("pairs-v2");  // the record's layout and method version (v2: fiducials)
-  fp.text(config_section_hash(config, {"register"}));
+  fp.text("pairs-v3");  // the record's layout and method version (v3: CT anchor)
+  fp.text(config_section_hash(config, {"register", "spacing_mm"}));
   for (int j = std::max(0, k - 4); j <= k; ++j)
     fp.file(files[std::size_t(j)].path);
+  if (anchored) {
+    fp.text(config_section_hash(config, {"ct", "mask.hu_threshold"}));
+    const SliceFile* ct = ct_file(config, ct_files, k);
+    fp.text(ct ? ct->path : "no CT slice");
+    if (ct) fp.file(ct->path);
+  }
   return fp.str();
 }
 
-// The stored pair record of slice k if it exists and is current.
+// The stored record of slice k if it exists and is current.
 std::optional<SlicePairs> load_pairs(const std::string& path, const std::string& fingerprint) {
   std::error_code ec;
   if (!fs::exists(path, ec)) return std::nullopt;
@@ -67,77 +83,9 @@ cv::Mat read_ct_hu(const CtSource& ct, const std::string& path) {
   return hu;
 }
 
-// ct_to_rgb from up to 5 usable slices around the middle of the stack (median of each
-// parameter over the slices where the refinement succeeded).
-std::optional<CtToRgb> align_ct(const Config& config, const std::vector<SliceFile>& files,
-                                const std::vector<SliceTransform>& t, nlohmann::json& report) {
-  if (!config.ct) return std::nullopt;
-  const RigidGuess& g = config.registration.ct_initial;
-  Similarity initial{g.scale, g.rotation_deg, g.dx_px, g.dy_px};
-  CtToRgb result{initial.scale, initial.rotation_deg, initial.dx_px, initial.dy_px};
-  report["ct_initial"] = {initial.scale, initial.rotation_deg, initial.dx_px, initial.dy_px};
-  if (!config.registration.ct_refine) return result;
-  const std::vector<SliceFile> ct_files = list_slices(*config.ct);
-  const int n = int(files.size());
-  std::vector<int> picks;
-  for (int i = 1; i <= 5; ++i) {
-    int k = int(std::lround(n * (0.25 + 0.5 * (i - 1) / 4.0)));
-    k = std::clamp(k, 0, n - 1);
-    const int ct_k = k + config.ct->slice_offset;
-    if (t[k].black || t[k].duplicate_of || ct_k < 0 || ct_k >= int(ct_files.size())) continue;
-    if (std::find(picks.begin(), picks.end(), k) == picks.end()) picks.push_back(k);
-  }
-  std::vector<Similarity> found(picks.size());
-  std::vector<char> ok(picks.size(), 0);
-  parallel_for(std::int64_t(picks.size()), 0, [&](std::int64_t i) {
-    const int k = picks[std::size_t(i)];
-    cv::Mat observed = to_rgb8(read_slice(files[k].path, config.rgb.raw));
-    cv::Mat registered;
-    cv::warpAffine(
-        observed, registered,
-        cv::Mat(output_to_observed(t[k], {(observed.cols - 1) / 2.0, (observed.rows - 1) / 2.0})),
-        observed.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_REPLICATE);
-    const cv::Vec3f gel = config.mask.gel_colour ? cv::Vec3f(float((*config.mask.gel_colour)[0]),
-                                                             float((*config.mask.gel_colour)[1]),
-                                                             float((*config.mask.gel_colour)[2]))
-                                                 : estimate_gel_colour(registered);
-    // The outline for the alignment sits nearer the middle of the gel→tissue edge than the
-    // mask's gel_distance: tissue showing through the translucent gel next to the body lies
-    // 40..50 from the gel colour and would move a 40-threshold outline outwards (by ~1 % in
-    // scale on the phantom).
-    cv::Mat rgb_outline =
-        colour_body_mask(registered, gel, std::max(kOutlineDistance, config.mask.gel_distance), 2);
-    cv::Mat ct_outline = ct_body_mask(
-        read_ct_hu(*config.ct, ct_files[std::size_t(k + config.ct->slice_offset)].path),
-        config.mask.hu_threshold);
-    bool good = false;
-    found[std::size_t(i)] = align_ct_to_rgb(ct_outline, rgb_outline, initial, &good);
-    ok[std::size_t(i)] = good;
-  });
-  std::vector<double> s, r, x, y;
-  nlohmann::json per = nlohmann::json::array();
-  for (std::size_t i = 0; i < picks.size(); ++i) {
-    per.push_back({{"slice", picks[i]},
-                   {"ok", bool(ok[i])},
-                   {"scale", found[i].scale},
-                   {"rotation_deg", found[i].rotation_deg},
-                   {"dx_px", found[i].dx_px},
-                   {"dy_px", found[i].dy_px}});
-    if (!ok[i]) continue;
-    s.push_back(found[i].scale), r.push_back(found[i].rotation_deg);
-    x.push_back(found[i].dx_px), y.push_back(found[i].dy_px);
-  }
-  report["ct_alignment_slices"] = per;
-  if (s.empty()) {
-    report["ct_alignment"] = "initial guess kept (refinement failed)";
-    return result;
-  }
-  auto median = [](std::vector<double> v) {
-    std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
-    return v[v.size() / 2];
-  };
-  report["ct_alignment"] = "refined";
-  return CtToRgb{median(s), median(r), median(x), median(y)};
+void warn(const StageOptions& options, const std::string& message) {
+  (void)options;  // warnings are printed even with --quiet: they change what the output means
+  std::fprintf(stderr, "vispack-register: warning: %s\n", message.c_str());
 }
 
 }  // namespace
@@ -149,30 +97,47 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
   if (!reg.enabled) reg.method = "none";
   if (reg.method != "phase+ecc" && reg.method != "phase" && reg.method != "none")
     throw ConfigError(cat(config.path, ": register.method: unknown method '", reg.method, "'"));
-  StageRun run(
-      config, "register", n, options,
-      {"rgb", "register", "ct", "mask.hu_threshold", "mask.gel_colour", "mask.gel_distance"});
+  const bool anchored = config.ct && reg.enabled && (reg.anchor == "auto" || reg.anchor == "ct");
+  const std::vector<SliceFile> ct_files =
+      config.ct ? list_slices(*config.ct) : std::vector<SliceFile>{};
+  std::vector<SliceOverride> overrides;
+  if (!reg.overrides.empty()) overrides = read_overrides(reg.overrides, n);
+  std::vector<std::string> stage_inputs;
+  if (!reg.overrides.empty()) stage_inputs.push_back(reg.overrides);
+  StageRun run(config, "register", n, options,
+               {"rgb", "register", "ct", "spacing_mm", "mask.hu_threshold", "mask.gel_colour",
+                "mask.gel_distance"},
+               stage_inputs);
   ScopedOpenCvThreads opencv_threads(run.threads() > 1 ? 1 : cv::getNumThreads());
   const SliceRange range = run.range();
   const auto t0 = std::chrono::steady_clock::now();
+  const std::optional<Similarity> ct_to_rgb =
+      config.ct ? std::optional<Similarity>(defined_ct_to_rgb(config)) : std::nullopt;
+  AnchorOptions anchor_options;
+  anchor_options.hu_threshold = config.mask.hu_threshold;
+  anchor_options.iterations = reg.ecc_iterations;
 
-  // 1. Pair records of the range.
+  // 1. Per-slice records of the range.
   make_directories(run.dir() + "/pairs");
   std::vector<std::string> fingerprints(static_cast<std::size_t>(n));
+  auto fingerprint = [&](int k) {
+    std::string& f = fingerprints[std::size_t(k)];
+    if (f.empty()) f = pair_fingerprint(config, files, ct_files, anchored, k);
+    return f;
+  };
   int first_missing = range.last, last_missing = range.first - 1;
   for (int k = range.first; k < range.last; ++k) {
-    fingerprints[std::size_t(k)] = pair_fingerprint(config, files, k);
-    if (options.force || !load_pairs(pairs_path(config, k), fingerprints[std::size_t(k)])) {
+    if (options.force || !load_pairs(pairs_path(config, k), fingerprint(k))) {
       first_missing = std::min(first_missing, k);
       last_missing = std::max(last_missing, k);
     }
   }
-  cv::Size size;
   std::atomic<std::uint64_t> bytes{0};
   int pairs_computed = 0;
   if (first_missing <= last_missing) {
     // Every slice must have the first slice's size (issue 7: a slice replaced between runs).
     const cv::Size stack_size = read_slice(files[0].path, config.rgb.raw).size();
+    const double anchor_scale = anchored ? anchor_working_scale(config) : 0.0;
     auto frame = [&](int k) {
       cv::Mat slice = read_slice(files[std::size_t(k)].path, config.rgb.raw);
       if (slice.size() != stack_size)
@@ -180,13 +145,23 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
                              ", the stack (", files[0].path, ") is ", stack_size.width, "x",
                              stack_size.height));
       bytes += slice.total() * slice.elemSize();
-      return prepare_frame(slice, reg);
+      return prepare_frame(slice, reg, anchor_scale);
     };
+    std::function<std::optional<AnchorEstimate>(int, const RegisterFrame&)> anchor;
+    if (anchored && reg.method != "none") {
+      anchor = [&](int k, const RegisterFrame& f) -> std::optional<AnchorEstimate> {
+        const SliceFile* ct = ct_file(config, ct_files, k);
+        if (!ct) return std::nullopt;
+        const cv::Mat hu = read_ct_hu(*config.ct, ct->path);
+        bytes += hu.total() * 2;
+        return estimate_ct_anchor(f, hu, *ct_to_rgb, anchor_options);
+      };
+    }
     std::vector<SlicePairs> computed =
-        compute_pairs(first_missing, last_missing + 1, frame, reg, run.threads());
+        compute_pairs(first_missing, last_missing + 1, frame, reg, run.threads(), anchor);
     for (const auto& p : computed) {
       nlohmann::json j = to_json(p);
-      j["fingerprint"] = fingerprints[std::size_t(p.index)];
+      j["fingerprint"] = fingerprint(p.index);
       write_file_atomic(pairs_path(config, p.index), j.dump(1) + "\n");
     }
     pairs_computed = int(computed.size());
@@ -197,36 +172,49 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
   run.set_report("pair_seconds", pair_seconds);
   if (pairs_computed > 0) run.set_report("pair_seconds_per_slice", pair_seconds / pairs_computed);
 
-  // 2. Chain when every slice's record is present.
+  // 2. Solve when every slice's record is present.
   std::vector<SlicePairs> all;
   all.reserve(std::size_t(n));
   for (int k = 0; k < n; ++k) {
-    const std::string fp = fingerprints[std::size_t(k)].empty() ? pair_fingerprint(config, files, k)
-                                                                : fingerprints[std::size_t(k)];
-    auto p = load_pairs(pairs_path(config, k), fp);
+    auto p = load_pairs(pairs_path(config, k), fingerprint(k));
     if (!p) break;
     all.push_back(std::move(*p));
   }
   const std::string tpath = transforms_path(config);
   if (int(all.size()) == n && n > 0) {
-    cv::Mat first = read_slice(files[0].path, config.rgb.raw);
-    size = first.size();
-    int fiducial_groups = 0;
-    std::vector<SliceTransform> chained =
-        chain_transforms(all, size, reg.jump_px, &fiducial_groups);
-    run.set_quality("fiducial_groups", fiducial_groups);
+    const cv::Size size = read_slice(files[0].path, config.rgb.raw).size();
+    StackSolveOptions so;
+    so.jump_px = reg.jump_px;
+    so.overrides = overrides;
+    if (anchored) {
+      so.anchor = "ct";
+    } else if (reg.anchor == "none" || !reg.enabled) {
+      so.anchor = "none";
+    } else {
+      so.anchor = "fiducials";  // "fiducials", or "auto" without CT
+    }
+    StackSolve solved = solve_stack(all, size, so);
+    if (so.anchor == "fiducials" && solved.fiducial_groups == 0) {
+      so.anchor = "none";
+      solved = solve_stack(all, size, so);
+    }
+    std::vector<SliceTransform>& slices = solved.slices;
     for (int k = 0; k < n; ++k) {
-      chained[std::size_t(k)].number = files[std::size_t(k)].number;
-      chained[std::size_t(k)].file = fs::path(files[std::size_t(k)].path).filename().string();
+      slices[std::size_t(k)].number = files[std::size_t(k)].number;
+      slices[std::size_t(k)].file = fs::path(files[std::size_t(k)].path).filename().string();
     }
     StackTransforms st;
     st.width = size.width;
     st.height = size.height;
     st.center_px = {(size.width - 1) / 2.0, (size.height - 1) / 2.0};
-    st.slices = chained;
-    nlohmann::json ct_report = nlohmann::json::object();
-    st.ct_to_rgb = align_ct(config, files, chained, ct_report);
-    run.set_report("ct", ct_report);
+    st.slices = slices;
+    st.extra["frame"] = solved.frame;
+    if (solved.frame == "ct") {
+      st.reference_slice.reset();
+    } else {
+      st.reference_slice = 0;
+    }
+    st.ct_to_rgb = ct_to_rgb;
     // Rewrite only on change, so later stages (whose staleness follows this file) stay current.
     bool same = false;
     try {
@@ -240,12 +228,68 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
       same = false;
     }
     if (!same) write_transforms(tpath, st);
-    // Quality summary.
+    // The transform curves.
+    std::vector<std::optional<AnchorEstimate>> anchors(static_cast<std::size_t>(n));
+    for (int k = 0; k < n; ++k)
+      anchors[std::size_t(k)] = all[std::size_t(k)].anchor;
+    make_directories(run.dir() + "/qc");
+    write_image(run.dir() + "/qc/transforms.png",
+                plot_transforms(slices, anchors, overrides,
+                                cat(config.name, ": frame ", solved.frame, ", anchor ", so.anchor,
+                                    ", ", n, " slices")));
+    // Report.
+    run.set_quality("anchor", so.anchor);
+    run.set_quality("frame", solved.frame);
+    run.set_quality("fiducial_groups", solved.fiducial_groups);
+    nlohmann::json warnings = nlohmann::json::array();
+    if (so.anchor == "ct") {
+      nlohmann::json weak = nlohmann::json::array(), unanchored = nlohmann::json::array();
+      double csum = 0, rsum2 = 0;
+      int cn = 0;
+      for (const auto& s : slices) {
+        if (s.black || s.duplicate_of) continue;
+        const double conf = s.extra.value("anchor_confidence", 0.0);
+        if (conf == 0.0) {
+          unanchored.push_back(s.index);
+        } else if (conf < 0.3) {
+          weak.push_back({{"slice", s.index}, {"confidence", conf}});
+        }
+        if (s.extra.contains("anchor_residual_px") && conf > 0) {
+          const double r = s.extra["anchor_residual_px"].get<double>();
+          csum += conf, rsum2 += conf * r * r;
+          ++cn;
+        }
+      }
+      run.set_quality("anchors_used", solved.anchors_used);
+      run.set_quality("anchors_downweighted", solved.anchors_downweighted);
+      run.set_quality("anchor_residual_rms_px", cn ? std::sqrt(rsum2 / csum) : 0.0);
+      run.set_quality("low_confidence_anchors", weak);
+      run.set_quality("unanchored_slices", unanchored);
+      if (!unanchored.empty())
+        warnings.push_back(cat(unanchored.size(),
+                               " slices have no CT anchor (no body in the CT, no CT slice, or the "
+                               "alignment failed); their transforms follow their neighbours"));
+    } else {
+      warnings.push_back(
+          so.anchor == "fiducials"
+              ? "no CT anchor: drift is tied to the fiducial tubes only; where no tube is seen, "
+                "absolute drift is not observable"
+              : "no CT and no fiducials: absolute drift is not observable; the transforms are "
+                "slice-to-slice estimates regularised towards no drift (window 100 slices), "
+                "slice 0 is the reference");
+    }
+    for (const auto& w : warnings)
+      warn(options, w.get<std::string>());
+    run.set_report("warnings", warnings);
+    nlohmann::json over = nlohmann::json::array();
+    for (const auto& o : overrides)
+      over.push_back(to_json(o));
+    run.set_report("overrides", {{"file", reg.overrides}, {"slices", over}});
     std::vector<int> jumps, blacks;
     nlohmann::json duplicates = nlohmann::json::array();
     double qsum = 0, qmin = 1;
     int qn = 0;
-    for (const auto& s : chained) {
+    for (const auto& s : slices) {
       if (s.jump) jumps.push_back(s.index);
       if (s.black) blacks.push_back(s.index);
       if (s.duplicate_of) duplicates.push_back({s.index, *s.duplicate_of});
@@ -261,7 +305,10 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
       run.set_quality("ct_to_rgb", {{"scale", st.ct_to_rgb->scale},
                                     {"rotation_deg", st.ct_to_rgb->rotation_deg},
                                     {"dx_px", st.ct_to_rgb->dx_px},
-                                    {"dy_px", st.ct_to_rgb->dy_px}});
+                                    {"dy_px", st.ct_to_rgb->dy_px},
+                                    {"defined_by",
+                                     "config (ct.pixel_spacing_mm, spacing_mm, "
+                                     "register.output_frame)"}});
   } else {
     run.set_report("waiting",
                    cat(n - int(all.size()),
@@ -269,7 +316,7 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
                        "every shard has run"));
   }
 
-  // 3. Registered slices of the range, once transforms.json covers the whole stack.
+  // 3. Registered slices and QC overlays of the range, once transforms.json covers the stack.
   std::optional<StackTransforms> st;
   try {
     if (fs::exists(tpath)) st = read_transforms(tpath);
@@ -278,17 +325,21 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
   }
   if (st && int(st->slices.size()) == n) {
     make_directories(run.dir() + "/registered");
+    make_directories(run.dir() + "/qc");
     parallel_for(range.size(), run.threads(), [&](std::int64_t i) {
       const int k = range.first + int(i);
       const SliceTransform& t = st->slices[std::size_t(k)];
-      const std::string in = Fingerprint()
-                                 .file(files[std::size_t(k)].path)
-                                 .number(t.dx_px)
-                                 .number(t.dy_px)
-                                 .number(t.rotation_deg)
-                                 .str();
+      const SliceFile* ct = ct_file(config, ct_files, k);
+      Fingerprint in_fp;
+      in_fp.file(files[std::size_t(k)].path)
+          .number(t.rigid.dx_px)
+          .number(t.rigid.dy_px)
+          .number(t.rigid.rotation_deg);
+      if (ct) in_fp.file(ct->path);
+      const std::string in = in_fp.str();
       const std::string out = registered_rgb_path(config, k);
-      if (run.up_to_date(k, in, {out})) {
+      const std::string overlay = run.slice_path("qc/overlay", k);
+      if (run.up_to_date(k, in, {out, overlay})) {
         run.skip(k);
         return;
       }
@@ -297,11 +348,16 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
         throw InputError(cat(files[std::size_t(k)].path, ": slice is ", observed.cols, "x",
                              observed.rows, ", the stack is ", st->width, "x", st->height));
       cv::Mat registered;
-      cv::warpAffine(observed, registered, cv::Mat(output_to_observed(t, st->center_px)),
+      cv::warpAffine(observed, registered, cv::Mat(rigid_matrix(t.rigid, st->centre())),
                      observed.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP,
                      cv::BORDER_REPLICATE);
       write_image(out, registered);
-      run.done(k, in, {out}, observed.total() * observed.elemSize());
+      cv::Mat hu;
+      if (ct && st->ct_to_rgb) hu = read_ct_hu(*config.ct, ct->path);
+      write_image(overlay,
+                  draw_ct_overlay(registered, hu, st->ct_to_rgb ? *st->ct_to_rgb : Similarity{},
+                                  config.mask.hu_threshold));
+      run.done(k, in, {out, overlay}, observed.total() * observed.elemSize());
     });
   }
   run.add_bytes(bytes.load());

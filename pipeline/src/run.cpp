@@ -4,11 +4,13 @@
 #include <iostream>
 
 #include "vispack/common/error.h"
-#include "vispack/pipeline/labels.h"
-#include "vispack/pipeline/mask.h"
+#include "vispack/common/test_pause.h"
+#include "vispack/pipeline/labels_stage.h"
+#include "vispack/pipeline/mask_stage.h"
 #include "vispack/pipeline/pack.h"
-#include "vispack/pipeline/register.h"
+#include "vispack/pipeline/register_stage.h"
 #include "vispack/pipeline/vdb.h"
+#include "vispack/pipeline/work_layout.h"
 
 namespace vispack::pipeline {
 
@@ -38,6 +40,7 @@ std::vector<StageResult> run_pipeline(const Config& config, const RunOptions& op
     const std::string& name = names[i];
     if (name == "labels" && !config.seg) continue;
     if (name == "vdb" && (!config.vdb.enabled || config.vdb_output.empty())) continue;
+    if (test_pause_enabled()) test_pause_point("before:" + name);
     StageResult r;
     if (name == "register") r = run_register_stage(config, stage_options);
     if (name == "mask") r = run_mask_stage(config, stage_options);

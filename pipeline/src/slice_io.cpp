@@ -12,21 +12,12 @@
 
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
+#include "vispack/common/image_io.h"
 
 namespace vispack::pipeline {
 namespace {
 
 namespace fs = std::filesystem;
-
-std::string lower(std::string s) {
-  for (char& c : s)
-    c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  return s;
-}
-
-std::string extension_of(const std::string& path) {
-  return lower(fs::path(path).extension().string());
-}
 
 // Size guard shared by the OIIO and raw readers.
 void check_size(const std::string& path, std::int64_t width, std::int64_t height,
@@ -247,66 +238,22 @@ cv::Mat read_slice(const std::string& path, const std::optional<RawLayout>& raw)
 }
 
 void write_image(const std::string& path, const cv::Mat& image, int jpeg_quality) {
-  const std::string ext = extension_of(path);
-  std::string format;
-  if (ext == ".png") {
-    format = "png";
-  } else if (ext == ".tif" || ext == ".tiff") {
-    format = "tiff";
-  } else if (ext == ".jpg" || ext == ".jpeg") {
-    format = "jpeg";
-  } else if (ext == ".bmp") {
-    format = "bmp";
-  } else {
-    throw IoError(cat(path, ": cannot write image: unsupported extension \"", ext,
-                      "\" (use .png, .tif, .tiff, .jpg, .jpeg or .bmp)"));
-  }
   if (image.empty() || image.dims != 2) throw IoError(cat(path, ": cannot write an empty image"));
   const int depth = image.depth();
-  const int channels = image.channels();
-  if ((depth != CV_8U && depth != CV_16U) || (channels != 1 && channels != 3 && channels != 4)) {
-    throw IoError(cat(path,
-                      ": cannot write image: pixel type must be 8 or 16 bit with 1, 3 or 4 "
-                      "channels (got depth ",
-                      depth, ", ", channels, " channels)"));
+  if (depth != CV_8U && depth != CV_16U) {
+    throw IoError(cat(path, ": cannot write image: pixel type must be 8 or 16 bit (got depth ",
+                      depth, ")"));
   }
-  if ((format == "jpeg" || format == "bmp") && (depth != CV_8U || channels == 4)) {
-    throw IoError(cat(path, ": cannot write ", format, ": needs 8-bit grey or RGB"));
-  }
-  if (jpeg_quality < 1 || jpeg_quality > 100) {
-    throw IoError(cat(path, ": JPEG quality ", jpeg_quality, " is outside 1..100"));
-  }
-  const cv::Mat pixels = image.isContinuous() ? image : image.clone();
-  OIIO::ImageSpec spec(pixels.cols, pixels.rows, channels,
-                       depth == CV_8U ? OIIO::TypeDesc::UINT8 : OIIO::TypeDesc::UINT16);
-  if (channels == 4) {
-    spec.alpha_channel = 3;
-    spec.attribute("oiio:UnassociatedAlpha", 1);  // the colour is stored as given
-  }
-  if (format == "png") {
-    spec.attribute("png:compressionLevel", 4);  // fixed: deterministic bytes, fast enough
-  } else if (format == "tiff") {
-    spec.attribute("compression", "zip");
-  } else {
-    spec.attribute("Compression", cat("jpeg:", jpeg_quality));
-    spec.attribute("CompressionQuality", jpeg_quality);
-  }
-
-  auto output = OIIO::ImageOutput::create(format);
-  if (!output) throw IoError(cat(path, ": cannot write image: ", one_line(OIIO::geterror())));
-  std::vector<unsigned char> buffer;
-  OIIO::Filesystem::IOVecOutput proxy(buffer);
-  if (!output->supports("ioproxy")) {
-    throw IoError(
-        cat(path, ": cannot write image: the ", format, " writer cannot write to memory"));
-  }
-  if (!output->set_ioproxy(&proxy) || !output->open(path, spec, OIIO::ImageOutput::Create)) {
-    throw IoError(cat(path, ": cannot write image: ", one_line(output->geterror())));
-  }
-  if (!output->write_image(spec.format, pixels.data) || !output->close()) {
-    throw IoError(cat(path, ": cannot write image: ", one_line(output->geterror())));
-  }
-  write_file_atomic(path, buffer.data(), buffer.size());
+  ImageView view;
+  view.width = image.cols;
+  view.height = image.rows;
+  view.channels = image.channels();
+  view.bits = depth == CV_8U ? 8 : 16;
+  view.pixels = image.data;
+  view.row_bytes = image.step[0];
+  ImageWriteOptions options;
+  options.jpeg_quality = jpeg_quality;
+  write_image_file(path, view, options);
 }
 
 void write_raw_slice(const std::string& path, const cv::Mat& image, const RawLayout& layout) {

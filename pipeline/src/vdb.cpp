@@ -11,33 +11,11 @@
 #include "vispack/common/error.h"
 #include "vispack/pipeline/slice_io.h"
 #include "vispack/pipeline/version.h"
+#include "vispack/pipeline/work_layout.h"
 
 namespace vispack::pipeline {
 
 namespace fs = std::filesystem;
-
-namespace {
-
-cv::Mat read_checked(const std::string& path, int type, cv::Size size) {
-  if (!fs::exists(path))
-    throw InputError(cat(path, ": missing intermediate (run the earlier stages first)"));
-  cv::Mat m = read_slice(path);
-  if (m.type() != type || m.size() != size)
-    throw InputError(cat(path, ": is ", m.cols, "x", m.rows,
-                         " of the wrong type or size (expected ", size.width, "x", size.height,
-                         ")"));
-  return m;
-}
-
-// Removes a temporary file unless released (the write failed half way).
-struct TempGuard {
-  std::string path;
-  ~TempGuard() {
-    if (!path.empty()) std::remove(path.c_str());
-  }
-};
-
-}  // namespace
 
 StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
   if (!config.vdb.enabled || config.vdb_output.empty())
@@ -77,12 +55,9 @@ StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
   auto rgb_acc = rgb_grid->getAccessor();
   std::uint64_t active = 0, bytes = 0;
   for (int k = 0; k < n; ++k) {
-    cv::Mat mask = read_checked(mask_path(config, k), CV_8UC1, size);
-    cv::Mat rgb = read_checked(registered_rgb_path(config, k), CV_8UC3, size);
-    cv::Mat ct, labels;
-    if (has_ct) ct = read_checked(mask_ct_path(config, k), CV_16UC1, size);
-    if (has_labels) labels = read_checked(labels_path(config, k), CV_16UC1, size);
-    bytes += mask.total() * (1 + 3 + (has_ct ? 2 : 0) + (has_labels ? 2 : 0));
+    const Intermediates in = read_intermediates(config, k, size);
+    const cv::Mat &mask = in.mask, &rgb = in.rgb, &ct = in.ct, &labels = in.labels;
+    bytes += in.bytes;
     for (int y = 0; y < size.height; ++y) {
       const std::uint8_t* m = mask.ptr<std::uint8_t>(y);
       for (int x = 0; x < size.width; ++x) {
@@ -108,18 +83,17 @@ StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
   name_grid(rgb_grid, "rgb", "rgb01");
 
   make_directories(fs::path(config.vdb_output).parent_path().string());
-  TempGuard temp{cat(config.vdb_output, ".tmp-", ::getpid())};
+  // OpenVDB writes by path: it writes the AtomicFile's temporary, which commit() then fsyncs and
+  // renames into place (removed on any failure).
+  AtomicFile out(config.vdb_output);
   try {
-    openvdb::io::File file(temp.path);
+    openvdb::io::File file(out.temp_path());
     file.write(grids);  // default compression: Blosc if available, else zip
     file.close();
   } catch (const openvdb::Exception& e) {
     throw IoError(cat(config.vdb_output, ": cannot write: ", e.what()));
   }
-  std::error_code ec;
-  fs::rename(temp.path, config.vdb_output, ec);
-  if (ec) throw IoError(cat(config.vdb_output, ": cannot rename into place: ", ec.message()));
-  temp.path.clear();
+  out.commit();
   run.done(0, input, {config.vdb_output}, bytes);
   run.set_report("output", config.vdb_output);
   run.set_report("output_bytes", std::uint64_t(fs::file_size(config.vdb_output)));

@@ -1,5 +1,10 @@
 #include "vispack/pipeline/version.h"
 
+// VISPACK_VERSION comes from project(VERSION ...) in the top-level CMakeLists.txt.
+#ifndef VISPACK_VERSION
+#error "VISPACK_VERSION must be defined by the build (pipeline/CMakeLists.txt)"
+#endif
+
 namespace vispack {
-const char* version_string() { return "0.1.0"; }
+const char* version_string() { return VISPACK_VERSION; }
 }  // namespace vispack

@@ -1,5 +1,5 @@
 // vispack-labels: segmentation slices -> label IDs on the output grid (pipeline/labels.h).
-#include "vispack/pipeline/labels.h"
+#include "vispack/pipeline/labels_stage.h"
 
 int main(int argc, char** argv) {
   return vispack::pipeline::stage_main(

@@ -1,6 +1,5 @@
 // vispack-mask: body masks from the CT (colour-refined) on the registered colour grid.
-#include "vispack/pipeline/mask.h"
-#include "vispack/pipeline/stage.h"
+#include "vispack/pipeline/mask_stage.h"
 
 int main(int argc, char** argv) {
   return vispack::pipeline::stage_main(

@@ -1,6 +1,5 @@
 // vispack-register: slice-to-slice drift of the colour stack and the CT -> colour alignment.
-#include "vispack/pipeline/register.h"
-#include "vispack/pipeline/stage.h"
+#include "vispack/pipeline/register_stage.h"
 
 int main(int argc, char** argv) {
   return vispack::pipeline::stage_main(

@@ -102,10 +102,10 @@ class Report:
                "of the repetitions stated in each section.\n")
         self.w("SUMMARY_PLACEHOLDER\n")
 
-    # ---- stages against DESIGN.md section 7 (issue 4) -----------------------------------
+    # ---- stages against docs/GOALS.md §6 (issue 4) -----------------------------------
     def stages(self):
         st = load(self.res, "stages.json")
-        self.w("## Each stage on one and two cores, with its error, against DESIGN.md section 7\n")
+        self.w("## Each stage on one and two cores, with its error, against docs/GOALS.md §6\n")
         if not st:
             self.w("Not measured.\n")
             return
@@ -169,9 +169,9 @@ class Report:
         vd = by[("vdb", 2)]
         rows.append(["vdb"] + times("vdb") +
                      [f"not measured here (file {fmt(vd['output_bytes'] / 1e6)} MB, raw / file {raw / vd['output_bytes']:.2f}×)"
-                      if vd.get("output_bytes") else "not measured here", "none in DESIGN.md §7", "–"])
+                      if vd.get("output_bytes") else "not measured here", "none in docs/GOALS.md §6", "–"])
         self.w(table(["stage", "wall s / slice, 1 thread", "CPU s / slice, 1 thread", "wall s / slice, 2 threads",
-                      "CPU s / slice, 2 threads", "error against truth", "DESIGN.md §7 goal", "met?"], rows))
+                      "CPU s / slice, 2 threads", "error against truth", "docs/GOALS.md §6 goal", "met?"], rows))
         sp = {s: per(s, 1) / per(s, 2) for s in names}
         self.w("Wall-time speed-up from the second thread: " + ", ".join(f"{s} {v:.2f}×" for s, v in sp.items())
                + " (the machine is shared: with the load average above, a second thread often finds no "
@@ -200,10 +200,10 @@ class Report:
                              f"stage's {fmt(1e3 * mask1)} ms, which also reads the registered colour and CT "
                              "slices and writes CT, mask and overlay PNGs")
         if notes:
-            self.w("The anchors in DESIGN.md §7 time the computation alone (phase correlation 171 ms, Lab "
+            self.w("The anchors in docs/GOALS.md §6 time the computation alone (phase correlation 171 ms, Lab "
                    "threshold 40 ms); the stage times above are "
                    "end to end. For comparison, " + "; ".join(notes) + ".\n")
-        self.summary.insert(0, ["stages vs DESIGN.md §7 (1 thread, per slice)",
+        self.summary.insert(0, ["stages vs docs/GOALS.md §6 (1 thread, per slice)",
                                 f"register {fmt(reg1)} s, {e['drift_rms_px']:.3f} px; mask {fmt(1e3 * mask1)} ms, IoU {e['iou']:.4f}; "
                                 f"pack {vs_zstd:.2f}× zstd's time",
                                 "goals: 0.25 s, 0.1 px; 30 ms, 0.99; pack ≤ 1.25× zstd -3 -T2",
@@ -348,7 +348,7 @@ class Report:
             for p in epts:
                 ax.annotate(f"r{p[3]['resolutions']}/{p[3]['iterations']}", (p[1], max(p[2], floor)),
                             textcoords="offset points", xytext=(5, -12), fontsize=8, color="crimson")
-        ax.axhline(0.1, color="gray", linestyle=":", label="DESIGN.md goal: ≤ 0.1 px RMS")
+        ax.axhline(0.1, color="gray", linestyle=":", label="docs/GOALS.md goal: ≤ 0.1 px RMS")
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.margins(x=0.12, y=0.12)
@@ -399,7 +399,7 @@ class Report:
             ax.plot([r["ms_per_slice_wall"]], [r["iou"]], linestyle="none",
                     label=f"{'baseline (peer): ' if r['baseline'] else 'vispack: '}{key}, {r['threads']} thread(s)",
                     **style)
-        ax.axvline(30, color="gray", linestyle=":", label="DESIGN.md goal: ≤ 30 ms / slice")
+        ax.axvline(30, color="gray", linestyle=":", label="docs/GOALS.md goal: ≤ 30 ms / slice")
         ax.set_xscale("log")
         plain_ticks(ax)
         ax.set_xlabel("wall time per slice (ms, log scale)")
@@ -541,7 +541,7 @@ class Report:
                     label="VTK GPU ray caster (peer; PSNR vs its own fine frame)", **PEER)
             for r in k["rows"]:
                 ax.annotate(f"{r['sample_distance_voxels']:g} vx", (r["ms"], r["psnr_db"]), textcoords="offset points", xytext=(4, 4), fontsize=8, color="crimson")
-        ax.axhline(40, color="gray", linestyle=":", label="DESIGN.md goal: ≥ 40 dB at 2 slices / voxel")
+        ax.axhline(40, color="gray", linestyle=":", label="docs/GOALS.md goal: ≥ 40 dB at 2 slices / voxel")
         ax.set_xscale("log")
         plain_ticks(ax)
         ax.set_xlabel(f"frame time (ms, {v['size']}×{v['size']}, log scale)")

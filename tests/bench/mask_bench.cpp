@@ -1,11 +1,13 @@
 // Mask throughput at the Visible Human size (2048×1216): the CT mask carried onto the colour grid
 // with gel refinement (compute_mask) against the plain colour-threshold baseline (distance to the
 // gel colour + opening), on 1 and 2 threads, with the IoU against the synthetic truth.
-//   build/bin/mask_bench [--slices N] [--json OUT]
+//   build/bin/mask_bench [--slices N] [--ct-scale S] [--json OUT]
+// --ct-scale: output pixels per CT pixel (default 4, a 512×512 CT; 2: the CT 2× coarser).
 // --json also writes the rows (median of --reps R runs, default 1) for scripts/bench.sh, with a
 // third method (CT mask without the gel refinement) for the speed/accuracy curve.
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -21,17 +23,19 @@
 
 #include "vispack/common/parallel.h"
 #include "vispack/pipeline/mask.h"
-#include "vispack/pipeline/rigid.h"
+#include "vispack/pipeline/transforms.h"
 
 namespace vp = vispack::pipeline;
 
 int main(int argc, char** argv) {
   int slices = 16, reps = 1;
+  double scale = 4.0;  // output pixels per CT pixel
   std::string json_out;
   for (int i = 1; i + 1 < argc; ++i) {
     if (!std::strcmp(argv[i], "--slices")) slices = std::max(1, std::atoi(argv[i + 1]));
     if (!std::strcmp(argv[i], "--reps")) reps = std::max(1, std::atoi(argv[i + 1]));
     if (!std::strcmp(argv[i], "--json")) json_out = argv[i + 1];
+    if (!std::strcmp(argv[i], "--ct-scale")) scale = std::max(1.0, std::atof(argv[i + 1]));
   }
   nlohmann::json rows = nlohmann::json::array();
   const cv::Size size(2048, 1216);
@@ -48,13 +52,16 @@ int main(int argc, char** argv) {
   tissue.copyTo(rgb, truth);
   cv::circle(rgb, {120, 120}, 30, cv::Scalar(40, 200, 60), -1);
   cv::circle(rgb, {1930, 1100}, 30, cv::Scalar(40, 200, 60), -1);
-  // CT 512×512 at 4 output px per CT px: the body (+40 HU) without the notch, in air.
-  const double scale = 4.0;
+  // CT at `scale` output px per CT px (default 4: 512×512; a square matrix covering the colour
+  // frame's width): the body (+40 HU) without the notch, in air.
+  const int n_ct = std::max(512, int(std::ceil(size.width / scale)));
   vp::Similarity ct_to_out{scale, 0, 0, 0};
-  const cv::Matx23d out_to_ct =
-      vp::invert_affine(vp::similarity_matrix(ct_to_out, {255.5, 255.5}, vp::image_centre(size)));
-  cv::Mat ct(512, 512, CV_32F, cv::Scalar(-1000));
-  cv::ellipse(ct, {256, 256}, {200, 120}, 0, 0, 360, cv::Scalar(40), -1);
+  const cv::Matx23d out_to_ct = vp::invert_affine(vp::similarity_matrix(
+      ct_to_out, {(n_ct - 1) / 2.0, (n_ct - 1) / 2.0}, vp::image_centre(size)));
+  cv::Mat ct(n_ct, n_ct, CV_32F, cv::Scalar(-1000));
+  cv::ellipse(ct, {n_ct / 2, n_ct / 2},
+              {int(std::lround(800 / scale)), int(std::lround(480 / scale))}, 0, 0, 360,
+              cv::Scalar(40), -1);
   vp::MaskOptions options;
   std::printf("| threads | method | ms/slice (wall × threads) | CPU ms/slice | IoU |\n");
   std::printf("|---|---|---|---|---|\n");
@@ -70,7 +77,7 @@ int main(int argc, char** argv) {
         const auto t0 = std::chrono::steady_clock::now();
         vispack::parallel_for(slices, threads, [&](std::int64_t i) {
           if (method == 0) {
-            // Baseline: colour threshold + opening (DESIGN.md section 7 anchor).
+            // Baseline: colour threshold + opening (docs/GOALS.md §6 anchor).
             out[std::size_t(i)] = vp::open_disc(
                 vp::non_gel(rgb, cv::Vec3f(40, 70, 160), options.gel_distance), options.opening_px);
           } else {
@@ -108,6 +115,7 @@ int main(int argc, char** argv) {
                                                         {"height", size.height},
                                                         {"slices", slices},
                                                         {"reps", reps},
+                                                        {"ct_scale", scale},
                                                         {"rows", rows}}
                                              .dump(1));
   return 0;

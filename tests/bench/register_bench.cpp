@@ -4,6 +4,8 @@
 // slice prepared once and registered against its two predecessors, compute_pairs) with the
 // chained error. Wall and CPU time. Prints tables (docs/BENCHMARKS.md "## Pipeline").
 //   build/bin/register_bench [--slices N]
+// The CT-anchored stack (issue #11): the same stack against a CT 2.84× coarser, every slice
+// prepared once, registered against two predecessors and anchored on its CT slice, then solved.
 // Phantom mode (scripts/bench.sh): registers consecutive slice pairs of a vispack-phantom folder
 // with every method and ecc_scale offered, one thread, and writes the estimated and true pair
 // matrices as JSON (errors are computed by the caller, the same way for every peer); --dump
@@ -292,10 +294,75 @@ int main(int argc, char** argv) {
     for (int k = 0; k < n; ++k) {
       const auto& t = chained[std::size_t(k)];
       const auto& w = walk[std::size_t(k)];
-      sum2 += std::pow(t.dx_px - w.dx_px, 2) + std::pow(t.dy_px - w.dy_px, 2);
+      sum2 += std::pow(t.rigid.dx_px - w.dx_px, 2) + std::pow(t.rigid.dy_px - w.dy_px, 2);
     }
     std::printf("| %d | compute_pairs | %.1f | %.1f | %.3f |\n", threads, 1000.0 * seconds / n,
                 1000.0 * cpu / n, std::sqrt(sum2 / n));
+  }
+  // 3. With the CT anchor (issue #11): the same drifting stack against a CT 2.84× coarser
+  //    (VHP: 0.9375 mm CT, 0.33 mm colour) rendered from the undrifted body in the CT-defined
+  //    frame (HU from the grey level inside the body, −1000 outside). Per slice: the frame
+  //    prepared once (with its anchor level), the two pair edges and the anchor (compute_pairs
+  //    with the anchor callback), then the global solve; error against the walk at the corners
+  //    and centre.
+  {
+    const vp::Similarity frame{0.9375 / 0.33, 0.0, 0.0, 0.0};
+    const cv::Size ct_size(int(std::lround(size.width / frame.scale)),
+                           int(std::lround(size.height / frame.scale)));
+    cv::Mat grey, body_mask(size, CV_8U, cv::Scalar(0)), hu;
+    cv::cvtColor(tubes, grey, cv::COLOR_RGB2GRAY);
+    cv::ellipse(body_mask, {size.width / 2, size.height / 2},
+                {size.width * 2 / 5, size.height * 2 / 5}, 0, 0, 360, cv::Scalar(255), -1);
+    grey.convertTo(hu, CV_32F, 6.0, -700.0);
+    hu.setTo(cv::Scalar(-1000.0), body_mask == 0);
+    cv::Mat ct;
+    cv::resize(hu, ct, ct_size, 0, 0, cv::INTER_AREA);
+    const double anchor_scale = 1.0 / frame.scale;
+    std::printf(
+        "\n| threads | stack of %d slices, phase+ecc + CT anchor (CT %.2fx coarser) | ms/slice "
+        "(prepare + 2 pairs + anchor), wall | CPU ms/slice | of which anchor, CPU ms | solved "
+        "RMS error px (corners and centre) |\n",
+        n, frame.scale);
+    std::printf("|---|---|---|---|---|---|\n");
+    for (int threads : {1, 2}) {
+      cv::setNumThreads(1);
+      std::clock_t anchor_cpu = 0;
+      const std::clock_t c0 = std::clock();
+      const auto t0 = std::chrono::steady_clock::now();
+      const std::vector<vp::SlicePairs> records = vp::compute_pairs(
+          0, n,
+          [&](int k) { return vp::prepare_frame(stack[std::size_t(k)], options, anchor_scale); },
+          options, threads,
+          [&](int, const vp::RegisterFrame& f) -> std::optional<vp::AnchorEstimate> {
+            const std::clock_t a0 = std::clock();
+            vp::AnchorEstimate a = vp::estimate_ct_anchor(f, ct, frame, {});
+            if (threads == 1) anchor_cpu += std::clock() - a0;
+            return a;
+          });
+      vp::StackSolveOptions so;
+      so.anchor = "ct";
+      const vp::StackSolve solved = vp::solve_stack(records, size, so);
+      const double seconds =
+          std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      const double cpu = double(std::clock() - c0) / CLOCKS_PER_SEC;
+      double sum2 = 0;
+      for (int k = 0; k < n; ++k) {
+        const cv::Point2d c = vp::image_centre(size);
+        const vp::Rigid d = vp::rigid_from_matrix(
+            vp::compose_affine(vp::rigid_matrix(solved.slices[std::size_t(k)].rigid, c),
+                               vp::invert_affine(vp::rigid_matrix(walk[std::size_t(k)], c))),
+            c);
+        sum2 += std::pow(vp::rigid_motion_px(d, size), 2);
+      }
+      std::printf(
+          "| %d | compute_pairs + anchors + solve_stack | %.1f | %.1f | %s | %.3f |\n", threads,
+          1000.0 * seconds / n, 1000.0 * cpu / n,
+          threads == 1
+              ? std::to_string(int(std::lround(1000.0 * double(anchor_cpu) / CLOCKS_PER_SEC / n)))
+                    .c_str()
+              : "-",
+          std::sqrt(sum2 / n));
+    }
   }
   std::printf(
       "(wall: elapsed time, inflated by other processes on a loaded machine; CPU: process\n"

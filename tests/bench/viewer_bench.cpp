@@ -7,9 +7,17 @@
 // renderer (scripts/bench/vtk_peer.py) can render the same view; --spv LIST sets the slices per
 // voxel (default 0.5,1,2,4); with --json, colour frames of the coarser levels (levels of detail,
 // 1 slice per voxel) are timed against the same level-0 reference; --ref-png OUT saves it.
+// The brick-paged renderer (issue 14) is measured first: time to the first picture, then per
+// mode the bricks drawn (levels), skipped and culled, the bytes uploaded against the whole level,
+// the load time and the frame time at the level the screen footprint asks for; --psnr adds its
+// foreground PSNR against the CPU reference of the finest level it draws. --paged-only skips
+// the whole-level measurements (which upload level 0 whole).
+#include <time.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -22,7 +30,10 @@
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/cli.h"
 #include "vispack/format/writer.h"
+#include "vispack/render/brick_tree.h"
+#include "vispack/render/lost_slices.h"
 #include "vispack/render/reference.h"
+#include "vispack/viewer/brick_cache.h"
 #include "vispack/viewer/context.h"
 #include "vispack/viewer/slice_renderer.h"
 
@@ -33,6 +44,158 @@ namespace {
 double now() {
   return std::chrono::duration<double>(std::chrono::steady_clock::now().time_since_epoch()).count();
 }
+
+// CPU seconds of the process (all llvmpipe threads): load-independent frame cost.
+double cpu_seconds() {
+  timespec ts{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
+}
+
+// Foreground PSNR (pixels where either image is not black) and max difference.
+std::pair<double, int> body_psnr(const Image8& a, const Image8& b) {
+  double se = 0;
+  std::int64_t n = 0;
+  int worst = 0;
+  for (std::size_t i = 0; i + 3 < a.rgba.size(); i += 4) {
+    bool lit = false;
+    for (int c = 0; c < 3; ++c)
+      lit = lit || a.rgba[i + c] || b.rgba[i + c];
+    if (!lit) continue;
+    ++n;
+    for (int c = 0; c < 3; ++c) {
+      int e = std::abs(int(a.rgba[i + c]) - int(b.rgba[i + c]));
+      se += double(e) * e;
+      worst = std::max(worst, e);
+    }
+  }
+  return {se == 0 ? 99.0 : 10 * std::log10(255.0 * 255.0 * 3.0 * double(n) / se), worst};
+}
+
+void paged_bench(const std::string& path, int size, std::int64_t gpu_mb, bool psnr,
+                 nlohmann::json& out) {
+  double t_open = now();
+  std::shared_ptr<const VolumeSource> source = fill_lost_slices(open_packed(path));
+  viewer::HeadlessContext context;
+  viewer::SliceRenderer renderer;
+  BrickTree tree(*source);
+  auto cache = std::make_unique<viewer::BrickCache>(*source, gpu_mb << 20, 0);
+  LevelGeometry g0 = source->level(0);
+  OrbitParams orbit;
+  orbit.target = g0.box().centre();
+  orbit.azimuth_deg = 30;
+  orbit.elevation_deg = 20;
+  Camera cam = orbit_camera(orbit, g0.box(), size, size);
+  RenderParams base;
+  base.opacity = 0.6;
+  base.label_colours = make_label_colours(source->labels(), 0.5);
+  base.reference_length_mm = reference_length(g0);
+  const int levels = source->level_count();
+  {
+    PlanOptions first;
+    first.finest_level = first.coarsest_level = levels - 1;
+    unsigned ch = channels_for(base, tree.present_channels());
+    BrickPlan plan = plan_bricks(tree, cam, base, first, ch);
+    cache->request(plan.draw, ch);
+    cache->pump(-1);
+    cache->use(plan.draw);
+    renderer.render_bricks(*cache, tree, plan, cam, base);
+    renderer.read_rgba8();
+  }
+  const double first_picture = now() - t_open;
+  std::printf(
+      "\n%s\n\nbrick-paged renderer, %dx%d frame, volume %lldx%lldx%lld, bricks of %d, "
+      "%d levels\n\n| what | value |\n|---|---|\n| first picture after open (coarsest "
+      "level) | %.3f s |\n",
+      context.description().c_str(), size, size, (long long)g0.dims[0], (long long)g0.dims[1],
+      (long long)g0.dims[2], source->brick_edge(), levels, first_picture);
+  out["paged_first_picture_s"] = first_picture;
+  std::printf(
+      "\n| mode | slices/voxel | bricks drawn (per level) | skipped empty bricks | "
+      "skipped empty cells | culled | uploaded MB | whole level MB | load s | frame ms | "
+      "frame CPU s |%s\n|---|---|---|---|---|---|---|---|---|---|---|%s\n",
+      psnr ? " PSNR (dB) / max diff |" : "", psnr ? "---|" : "");
+  nlohmann::json rows = nlohmann::json::array();
+  for (double spv : {2.0, 1.0})
+    for (Mode m : {Mode::kColour, Mode::kCt, Mode::kIso, Mode::kLabels, Mode::kMip, Mode::kTf2d}) {
+      RenderParams p = base;
+      p.mode = m;
+      p.slices_per_voxel = spv;
+      if (m == Mode::kCt) p.opacity = 0.3;
+      if (m == Mode::kIso) p.iso_hu = 300;
+      const unsigned ch = channels_for(p, tree.present_channels());
+      PlanOptions popt;
+      popt.max_bytes = gpu_mb << 20;
+      popt.border = viewer::BrickCache::kBorder;
+      BrickPlan plan = plan_bricks(tree, cam, p, popt, ch);
+      // A fresh cache per mode at the first density: its uploads are that frame's own.
+      if (spv == 2.0) cache = std::make_unique<viewer::BrickCache>(*source, gpu_mb << 20, 0);
+      cache->reset_counters();
+      double t0 = now();
+      cache->request(plan.draw, ch);
+      cache->pump(-1);
+      cache->use(plan.draw);
+      const double load_s = now() - t0;
+      const std::int64_t uploaded = cache->stats().uploaded_bytes;
+      renderer.render_bricks(*cache, tree, plan, cam, p);  // warm-up (shader compile)
+      renderer.read_rgba8();
+      const int reps = 2;
+      t0 = now();
+      const double cpu0 = cpu_seconds();
+      Image8 img;
+      viewer::FrameInfo info;
+      for (int r = 0; r < reps; ++r) {
+        info = renderer.render_bricks(*cache, tree, plan, cam, p);
+        img = renderer.read_rgba8();
+      }
+      const double ms = (now() - t0) / reps * 1e3;
+      const double cpu = (cpu_seconds() - cpu0) / reps;
+      int per_level[64] = {0}, finest = levels - 1;
+      for (const BrickKey& k : plan.draw) {
+        per_level[k.level]++;
+        finest = std::min(finest, k.level);
+      }
+      std::string mix;
+      for (int l = 0; l < levels; ++l)
+        if (per_level[l])
+          mix +=
+              (mix.empty() ? "" : ", ") + std::to_string(per_level[l]) + " L" + std::to_string(l);
+      std::int64_t whole = 0;
+      for (Channel c : {Channel::kRgba, Channel::kCt, Channel::kLabels})
+        if (ch & channel_bit(c)) whole += source->level(finest).voxels() * channel_bytes(c);
+      std::string psnr_cell;
+      nlohmann::json row = {{"mode", mode_name(m)},
+                            {"drawn", plan.draw.size()},
+                            {"slices_per_voxel", spv},
+                            {"cells_skipped", info.cells_skipped},
+                            {"frame_cpu_s", cpu},
+                            {"levels", mix},
+                            {"skipped", plan.skipped},
+                            {"culled", plan.culled},
+                            {"uploaded_mb", uploaded / 1e6},
+                            {"whole_level", finest},
+                            {"whole_level_mb", whole / 1e6},
+                            {"load_s", load_s},
+                            {"frame_ms", ms}};
+      if (psnr) {
+        VolumeData level = load_level(*source, finest);
+        Image8 ref = to_rgba8(render_reference(level, cam, p, {4}));
+        auto [db, worst] = body_psnr(img, ref);
+        psnr_cell = " " + std::to_string(db).substr(0, 5) + " / " + std::to_string(worst) + " |";
+        row["psnr_db"] = db;
+        row["max_diff"] = worst;
+      }
+      std::printf(
+          "| %s | %.0f | %zu (%s) | %lld | %lld | %lld | %.1f | %.1f (L%d) | %.2f | %.0f | "
+          "%.2f |%s\n",
+          mode_name(m), spv, plan.draw.size(), mix.c_str(), (long long)plan.skipped,
+          (long long)info.cells_skipped, (long long)plan.culled, uploaded / 1e6, whole / 1e6,
+          finest, load_s, ms, cpu, psnr_cell.c_str());
+      rows.push_back(row);
+    }
+  out["paged"] = rows;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -45,6 +208,9 @@ int main(int argc, char** argv) {
     std::string spv_text =
         args.option("--spv", "LIST", "slices per voxel, comma separated", "0.5,1,2,4");
     auto ref_png = args.option("--ref-png", "OUT", "save the colour CPU reference frame");
+    bool paged_only = args.flag("--paged-only", "skip the whole-level measurements");
+    bool paged_psnr = args.flag("--psnr", "paged frames: PSNR against the reference");
+    auto gpu_mb = args.option_int("--max-gpu-mb", "MB", "brick cache budget (default 2048)");
     args.done();
     std::vector<double> spv;
     for (std::size_t pos = 0; pos < spv_text.size();) {
@@ -82,6 +248,13 @@ int main(int argc, char** argv) {
         o.label_table.push_back({l.id, l.name, l.colour});
       format::write_volume(path, o, {v->rgba.data(), v->ct.data(), v->labels.data()});
       std::printf("synthetic %dx%dx%d written in %.1f s\n", d[0], d[1], d[2], now() - t0);
+    }
+
+    paged_bench(path, size, gpu_mb.value_or(2048), paged_psnr, out);
+    if (paged_only) {
+      if (json_out) write_file_atomic(*json_out, out.dump(1));
+      if (!tmp.empty()) std::filesystem::remove_all(tmp);
+      return 0;
     }
 
     // Time to first frame: open, context, coarsest level, one frame read back.

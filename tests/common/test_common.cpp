@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <fstream>
 
+#include "test_support.h"
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/cli.h"
 #include "vispack/common/error.h"
@@ -23,16 +24,7 @@ using namespace vispack;
 
 namespace {
 
-class TempFolder {
- public:
-  TempFolder() {
-    std::string pattern = (fs::temp_directory_path() / "vispack-common-XXXXXX").string();
-    path = ::mkdtemp(pattern.data());
-  }
-  ~TempFolder() { fs::remove_all(path); }
-  std::string operator/(const std::string& name) const { return (path / name).string(); }
-  fs::path path;
-};
+using vispack::test::TempDir;
 
 std::size_t count_files(const fs::path& dir) {
   return std::distance(fs::directory_iterator(dir), fs::directory_iterator());
@@ -41,29 +33,29 @@ std::size_t count_files(const fs::path& dir) {
 }  // namespace
 
 TEST(AtomicFile, CommitPublishesCompleteFile) {
-  TempFolder dir;
+  TempDir dir;
   AtomicFile file(dir / "out.bin");
   file.write("hello ");
   EXPECT_FALSE(fs::exists(dir / "out.bin"));  // nothing at the destination before commit
   file.write("world");
   file.commit();
   EXPECT_EQ(read_file(dir / "out.bin"), "hello world");
-  EXPECT_EQ(count_files(dir.path), 1u);  // no temporary left behind
+  EXPECT_EQ(count_files(dir.path()), 1u);  // no temporary left behind
 }
 
 TEST(AtomicFile, AbandonedWriteKeepsOldContentAndLeavesNoTemp) {
-  TempFolder dir;
+  TempDir dir;
   write_file_atomic(dir / "out.txt", "old");
   {
     AtomicFile file(dir / "out.txt");
     file.write("new but never committed");
   }
   EXPECT_EQ(read_file(dir / "out.txt"), "old");
-  EXPECT_EQ(count_files(dir.path), 1u);
+  EXPECT_EQ(count_files(dir.path()), 1u);
 }
 
 TEST(AtomicFile, PwritePatchesWithoutMovingAppendPosition) {
-  TempFolder dir;
+  TempDir dir;
   AtomicFile file(dir / "p.bin");
   file.write("XXXXtail");
   file.pwrite("head", 4, 0);
@@ -82,7 +74,7 @@ TEST(AtomicFile, MissingFolderIsIoErrorNamingPath) {
 }
 
 TEST(AtomicFile, FileSizeLimitIsIoErrorNotPartialFile) {
-  TempFolder dir;
+  TempDir dir;
   // RLIMIT_FSIZE makes write() fail with EFBIG (SIGXFSZ ignored), as a full disk would.
   struct rlimit old_limit {};
   getrlimit(RLIMIT_FSIZE, &old_limit);
@@ -102,11 +94,11 @@ TEST(AtomicFile, FileSizeLimitIsIoErrorNotPartialFile) {
   std::signal(SIGXFSZ, old_handler);
   EXPECT_TRUE(threw);
   EXPECT_FALSE(fs::exists(dir / "big.bin"));
-  EXPECT_EQ(count_files(dir.path), 0u);
+  EXPECT_EQ(count_files(dir.path()), 0u);
 }
 
 TEST(ReadFile, RefusesOverLimitAndMissing) {
-  TempFolder dir;
+  TempDir dir;
   write_file_atomic(dir / "a", "0123456789");
   EXPECT_THROW(read_file(dir / "a", 5), IoError);
   EXPECT_EQ(read_file(dir / "a", 10), "0123456789");
@@ -116,7 +108,7 @@ TEST(ReadFile, RefusesOverLimitAndMissing) {
 class NrrdRoundTrip : public ::testing::TestWithParam<bool> {};
 
 TEST_P(NrrdRoundTrip, ScalarAndColourVolumesSurviveBitExact) {
-  TempFolder dir;
+  TempDir dir;
   bool gzip = GetParam();
   NrrdVolume ct;
   ct.type = NrrdType::kInt16;
@@ -151,7 +143,7 @@ TEST_P(NrrdRoundTrip, ScalarAndColourVolumesSurviveBitExact) {
 INSTANTIATE_TEST_SUITE_P(RawAndGzip, NrrdRoundTrip, ::testing::Values(false, true));
 
 TEST(Nrrd, TruncatedAndBadFilesAreFormatErrors) {
-  TempFolder dir;
+  TempDir dir;
   NrrdVolume v;
   v.dims = {8, 8, 8};
   v.data.assign(v.byte_size(), 7);
@@ -203,6 +195,30 @@ TEST(Args, UnknownOptionAndBadValueAreUsageErrors) {
   EXPECT_EQ(run_args({"prog", "--help"}, body), 0);
 }
 
+TEST(Args, AnUnknownOptionIsNamedBeforeAMissingPositional) {
+  // "vispack-info --bogus": the message names --bogus, the real mistake, not the missing FILE.
+  auto body = [](Args& args) {
+    args.flag("--json", "json");
+    args.positional("FILE", "file");
+    args.done();
+    return 0;
+  };
+  const auto message = [&](std::vector<std::string> words) {
+    std::vector<char*> argv;
+    for (auto& w : words) argv.push_back(w.data());
+    Args args("prog", int(argv.size()), argv.data());
+    try {
+      body(args);
+    } catch (const UsageError& e) {
+      return std::string(e.what());
+    }
+    return std::string("no error");
+  };
+  EXPECT_EQ(message({"prog", "--bogus"}), "unknown option --bogus (see --help)");
+  EXPECT_EQ(message({"prog", "--json"}), "missing FILE (see --help)");
+  EXPECT_EQ(message({"prog", "--json", "f.vpk"}), "no error");
+}
+
 TEST(Args, ExceptionsMapToExitCodes) {
   EXPECT_EQ(run_args({"p"}, [](Args&) -> int { throw IoError("x"); }), 3);
   EXPECT_EQ(run_args({"p"}, [](Args&) -> int { throw FormatError("x"); }), 4);
@@ -244,7 +260,7 @@ TEST(Hash, XxHash64KnownVectors) {
   // Reference values from the xxHash specification (seed 0).
   EXPECT_EQ(xxh64("", 0), 0xEF46DB3751D8E999ULL);
   EXPECT_EQ(hex64(0xEF46DB3751D8E999ULL), "ef46db3751d8e999");
-  TempFolder dir;
+  TempDir dir;
   write_file_atomic(dir / "h", "vispack");
   EXPECT_EQ(xxh64_file(dir / "h"), xxh64("vispack", 7));
 }

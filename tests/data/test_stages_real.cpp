@@ -19,7 +19,10 @@
 #include "vispack/pipeline/mask.h"
 #include "vispack/pipeline/register.h"
 #include "vispack/pipeline/slice_io.h"
-#include "vispack/pipeline/stage.h"
+#include "vispack/pipeline/stage_run.h"
+#include "vispack/pipeline/work_layout.h"
+#include "vispack/pipeline/register_stage.h"
+#include "vispack/pipeline/mask_stage.h"
 
 namespace vispack::test {
 namespace {
@@ -66,7 +69,7 @@ TEST(HeadCtStages, MaskExcludesHeadHolderArcOnEverySlice) {
   auto transforms = pipeline::read_transforms(pipeline::transforms_path(config));
   ASSERT_TRUE(transforms.ct_to_rgb.has_value());
   // The colour input is a rendering of the CT itself: the alignment must stay the identity
-  // (ct_initial scale 1); 0.02 / 1 px allow for the outline fit's sub-pixel noise.
+  // (ct_to_rgb is defined by the config: scale 1 = equal pixel sizes, output_frame identity).
   std::printf("head-ct ct_to_rgb: scale %.4f rot %.3f shift (%.3f, %.3f)\n",
               transforms.ct_to_rgb->scale, transforms.ct_to_rgb->rotation_deg,
               transforms.ct_to_rgb->dx_px, transforms.ct_to_rgb->dy_px);
@@ -126,11 +129,11 @@ TEST(VisibleWomanStages, ShiftsRecoveredAndGelRemoved) {
   for (std::size_t k = 0; k < got.slices.size(); ++k) {
     double dx = truth["slices"][k]["dx_px"], dy = truth["slices"][k]["dy_px"];
     std::printf("visible-woman slice %zu: shift (%.3f, %.3f) px, %.3f deg; truth (%g, %g)\n", k,
-                got.slices[k].dx_px, got.slices[k].dy_px, got.slices[k].rotation_deg, dx, dy);
-    // DESIGN.md asks 0.1 px RMS on the phantom; a pure shift of identical content is easier.
-    EXPECT_NEAR(got.slices[k].dx_px, dx, 0.1) << "slice " << k;
-    EXPECT_NEAR(got.slices[k].dy_px, dy, 0.1) << "slice " << k;
-    EXPECT_NEAR(got.slices[k].rotation_deg, 0.0, 0.1) << "slice " << k;
+                got.slices[k].rigid.dx_px, got.slices[k].rigid.dy_px, got.slices[k].rigid.rotation_deg, dx, dy);
+    // docs/GOALS.md asks 0.1 px RMS on the phantom; a pure shift of identical content is easier.
+    EXPECT_NEAR(got.slices[k].rigid.dx_px, dx, 0.1) << "slice " << k;
+    EXPECT_NEAR(got.slices[k].rigid.dy_px, dy, 0.1) << "slice " << k;
+    EXPECT_NEAR(got.slices[k].rigid.rotation_deg, 0.0, 0.1) << "slice " << k;
     if (k > 0) {  // a jump is a slice-to-slice motion above register.jump_px
       double pdx = truth["slices"][k - 1]["dx_px"], pdy = truth["slices"][k - 1]["dy_px"];
       bool jump = std::hypot(dx - pdx, dy - pdy) > config.registration.jump_px;

@@ -13,32 +13,26 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <random>
 #include <string>
 #include <vector>
 
+#include "test_support.h"
 #include "vispack/common/atomic_file.h"
+#include "vispack/common/hash.h"
 #include "vispack/format/format.h"
 
 namespace vispack::format::testing {
 
 using Dims = std::array<std::int64_t, 3>;
 
+// This process's scratch folder (a vispack_test_support TempDir), removed when the process ends
+// unless VISPACK_KEEP_TEST_DIRS is set.
 inline std::filesystem::path temp_dir() {
-  return std::filesystem::path(::testing::TempDir()) /
-         ("vispack_format_" + std::to_string(::getpid()));
+  static const vispack::test::TempDir dir("vispack-format");
+  return dir.path();
 }
-
-// Removes this process's scratch folder after the last test.
-class TempDirCleanup : public ::testing::Environment {
- public:
-  void TearDown() override {
-    std::error_code ec;
-    std::filesystem::remove_all(temp_dir(), ec);
-  }
-};
-inline ::testing::Environment* const kTempDirCleanup =
-    ::testing::AddGlobalTestEnvironment(new TempDirCleanup);
 
 inline std::string temp_path(const std::string& name) {
   static std::atomic<int> counter{0};
@@ -187,6 +181,71 @@ inline std::vector<std::uint8_t> reference_downsample(const std::vector<std::uin
         }
       }
   return out;
+}
+
+// ---- File-byte surgery (little-endian fields at the offsets of SPEC.md) ----
+
+inline std::uint64_t get_u64(const std::vector<std::uint8_t>& b, std::size_t off) {
+  std::uint64_t v;
+  std::memcpy(&v, &b[off], 8);
+  return v;
+}
+inline void set_u64(std::vector<std::uint8_t>& b, std::size_t off, std::uint64_t v) {
+  std::memcpy(&b[off], &v, 8);
+}
+inline void set_u32(std::vector<std::uint8_t>& b, std::size_t off, std::uint32_t v) {
+  std::memcpy(&b[off], &v, 4);
+}
+
+// A file cut into its parts, to be edited and reassembled with consistent offsets and checksum,
+// so that a test reaches the validation behind the checksum.
+struct Parts {
+  std::vector<std::uint8_t> header, payload, index, labels;
+  std::string meta;
+};
+
+inline Parts split(const std::vector<std::uint8_t>& f) {
+  Parts p;
+  p.header.assign(f.begin(), f.begin() + 128);
+  const std::uint64_t pend = get_u64(f, 32), moff = get_u64(f, 40), msize = get_u64(f, 48);
+  const std::uint64_t ioff = get_u64(f, 56), icount = get_u64(f, 64), loff = get_u64(f, 72);
+  p.payload.assign(f.begin() + 4096, f.begin() + std::ptrdiff_t(pend));
+  p.meta.assign(f.begin() + std::ptrdiff_t(moff), f.begin() + std::ptrdiff_t(moff + msize));
+  p.index.assign(f.begin() + std::ptrdiff_t(ioff), f.begin() + std::ptrdiff_t(ioff + 64 * icount));
+  p.labels.assign(f.begin() + std::ptrdiff_t(loff), f.end());
+  return p;
+}
+
+inline void rechecksum(std::vector<std::uint8_t>& f) {
+  std::uint64_t moff = std::min<std::uint64_t>(get_u64(f, 40), f.size());
+  std::vector<std::uint8_t> covered(f.begin(), f.begin() + 120);
+  covered.insert(covered.end(), f.begin() + std::ptrdiff_t(moff), f.end());
+  set_u64(f, 120, vispack::xxh64(covered.data(), covered.size()));
+}
+
+inline std::vector<std::uint8_t> assemble(
+    const Parts& p, const std::function<void(std::vector<std::uint8_t>&)>& patch = {}) {
+  std::vector<std::uint8_t> f = p.header;
+  f.resize(4096, 0);
+  f.insert(f.end(), p.payload.begin(), p.payload.end());
+  const std::uint64_t pend = f.size();
+  f.insert(f.end(), p.meta.begin(), p.meta.end());
+  f.resize((f.size() + 7) / 8 * 8, 0);
+  const std::uint64_t ioff = f.size();
+  f.insert(f.end(), p.index.begin(), p.index.end());
+  const std::uint64_t loff = f.size();
+  f.insert(f.end(), p.labels.begin(), p.labels.end());
+  set_u64(f, 16, f.size());
+  set_u64(f, 32, pend);
+  set_u64(f, 40, pend);
+  set_u64(f, 48, p.meta.size());
+  set_u64(f, 56, ioff);
+  set_u64(f, 64, p.index.size() / 64);
+  set_u64(f, 72, loff);
+  set_u64(f, 80, p.labels.size() / 4);
+  if (patch) patch(f);
+  rechecksum(f);
+  return f;
 }
 
 }  // namespace vispack::format::testing

@@ -56,7 +56,7 @@ void vispack_fuzz_write_seeds(const std::string& dir) {
   "ct": { "dir": "ct", "pattern": "ct_{n}.png", "pixel_spacing_mm": [0.9, 0.9], "slope": 1.0, "intercept": -1024.0 },
   "seg": { "dir": "seg", "pattern": "seg_{n}.png", "palette": "palette.json", "mode": "colour", "tolerance": 24, "strict": false },
   "register": { "enabled": true, "method": "phase+ecc", "ecc_scale": 0.5, "jump_px": 6.0,
-                "ct_initial": { "scale": 0.8, "rotation_deg": 0, "dx_px": 0, "dy_px": 0 } },
+                "output_frame": { "rotation_deg": 0, "dx_px": 0, "dy_px": 0 } },
   "mask": { "hu_threshold": -400, "opening_px": 1, "refine_gel": true },
   "pack": { "brick_edge": 64, "zstd_level": 3, "downsample": 1 },
   "vdb": { "enabled": true }

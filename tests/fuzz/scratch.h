@@ -7,22 +7,12 @@
 #include <filesystem>
 #include <string>
 
+#include "test_support.h"
+
 inline const std::string& vispack_fuzz_scratch_dir() {
-  struct Scratch {
-    std::string path;
-    Scratch() {
-      const char* tmp = std::getenv("TMPDIR");
-      std::string pattern = std::string(tmp && *tmp ? tmp : "/tmp") + "/vispack-fuzz-XXXXXX";
-      if (::mkdtemp(pattern.data()) == nullptr) std::abort();
-      path = pattern;
-    }
-    ~Scratch() {
-      std::error_code ec;
-      std::filesystem::remove_all(path, ec);
-    }
-  };
-  static Scratch scratch;  // one per process: libFuzzer calls the target repeatedly
-  return scratch.path;
+  // One per process (libFuzzer calls the target repeatedly), removed at exit.
+  static const vispack::test::TempDir scratch("vispack-fuzz");
+  return scratch.path();
 }
 
 // Writes `size` bytes to `path` (plain write: the fuzz input, not a vispack output).

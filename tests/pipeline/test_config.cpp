@@ -38,6 +38,7 @@ void make_inputs(const test::TempDir& dir) {
   write_file_atomic(dir / "data/palette.json",
                     R"({"labels":[{"id":1,"name":"a","colour":[1,2,3]}]})");
   write_file_atomic(dir / "data/id_map.json", R"({"1": 2})");
+  write_file_atomic(dir / "data/overrides.json", R"({"slices": []})");
 }
 
 // Every key the loader accepts, with a valid value (seg in mode "id" so that id_map is allowed).
@@ -57,8 +58,8 @@ json full_config() {
              "raw": { "width": 16, "height": 8, "channels": 1, "layout": "interleaved", "bits": 16,
                       "endian": "little", "header_bytes": 0 } },
     "register": { "enabled": true, "method": "phase+ecc", "ecc_scale": 0.5, "ecc_iterations": 50,
-                  "jump_px": 6.0, "ct_refine": true,
-                  "ct_initial": { "scale": 0.8, "rotation_deg": 0, "dx_px": 0, "dy_px": 0 } },
+                  "jump_px": 6.0, "anchor": "ct", "overrides": "data/overrides.json",
+                  "output_frame": { "rotation_deg": 1.5, "dx_px": -2, "dy_px": 3 } },
     "mask": { "hu_threshold": -400, "opening_px": 1, "refine_gel": true, "gel_colour": [30, 60, 200],
               "gel_distance": 40 },
     "pack": { "brick_edge": 64, "zstd_level": 3, "downsample": 1, "threads": 0 },
@@ -207,7 +208,10 @@ TEST(Config, FullConfigLoadsWithResolvedPaths) {
   EXPECT_EQ(c.seg->mode, "id");
   EXPECT_EQ(c.seg->id_map, dir / "data/id_map.json");
   EXPECT_EQ(c.seg->raw->channels, 1);
-  EXPECT_DOUBLE_EQ(c.registration.ct_initial.scale, 0.8);
+  EXPECT_DOUBLE_EQ(c.registration.output_frame.rotation_deg, 1.5);
+  EXPECT_DOUBLE_EQ(c.registration.output_frame.dy_px, 3.0);
+  EXPECT_EQ(c.registration.anchor, "ct");
+  EXPECT_EQ(c.registration.overrides, dir / "data/overrides.json");
   ASSERT_TRUE(c.mask.gel_colour.has_value());
   EXPECT_EQ((*c.mask.gel_colour)[2], 200);
   EXPECT_EQ(c.pack.brick_edge, 64);
@@ -268,8 +272,13 @@ TEST(Config, ErrorsNameTheKey) {
       {[](json& j) { j["seg"]["strict"] = 1; }, "seg.strict: must be true or false"},
       {[](json& j) { j["register"]["method"] = "sift"; }, "register.method"},
       {[](json& j) { j["register"]["ecc_scale"] = 0; }, "register.ecc_scale: 0 is out of range (0"},
-      {[](json& j) { j["register"]["ct_initial"]["scale"] = "big"; },
-       "register.ct_initial.scale: must be a number"},
+      {[](json& j) { j["register"]["output_frame"]["dx_px"] = "big"; },
+       "register.output_frame.dx_px: must be a number"},
+      {[](json& j) { j["register"]["ct_initial"] = json::object(); },
+       "register.ct_initial: unknown key"},
+      {[](json& j) { j["register"]["anchor"] = "gps"; }, "register.anchor: \"gps\" is not one of"},
+      {[](json& j) { j.erase("ct"); }, "register.anchor: \"ct\" needs a \"ct\" section"},
+      {[](json& j) { j["register"]["overrides"] = "none.json"; }, "register.overrides: file"},
       {[](json& j) { j["mask"]["opening_px"] = 1.5; }, "mask.opening_px: must be an integer"},
       {[](json& j) {
          j["mask"]["gel_colour"] = {1, 2, 300};

@@ -11,12 +11,16 @@
 #include "vispack/common/nrrd.h"
 #include "vispack/pipeline/config.h"
 #include "vispack/pipeline/mask.h"
-#include "vispack/pipeline/phantom.h"
+#include "vispack/phantom/phantom.h"
 #include "vispack/pipeline/register.h"
 #include "vispack/pipeline/slice_io.h"
-#include "vispack/pipeline/stage.h"
+#include "vispack/pipeline/stage_run.h"
+#include "vispack/pipeline/work_layout.h"
+#include "vispack/pipeline/register_stage.h"
+#include "vispack/pipeline/mask_stage.h"
 
 namespace vp = vispack::pipeline;
+namespace vph = vispack::phantom;
 using vispack::test::bin;
 using vispack::test::run_command;
 using vispack::test::TempDir;
@@ -124,11 +128,11 @@ TEST(Mask, HuEncodingAndOverlay) {
 // The stages on the small phantom: register then mask, compared with truth/mask.nrrd.
 TEST(MaskStage, SmallPhantomMatchesTruth) {
   TempDir dir("vispack-mask");
-  vp::PhantomOptions po;
+  vph::PhantomOptions po;
   po.preset = "small";
   po.seed = 3;
   po.quiet = true;
-  const vp::PhantomSummary summary = vp::make_phantom(dir.path(), po);
+  const vph::PhantomSummary summary = vph::make_phantom(dir.path(), po);
   const vp::Config config = vp::load_config(dir / "config.json");
   vp::StageOptions so;
   so.quiet = true;
@@ -152,7 +156,7 @@ TEST(MaskStage, SmallPhantomMatchesTruth) {
   }
   const double stack_iou = inter / uni;
   RecordProperty("stack_iou", std::to_string(stack_iou));
-  // DESIGN.md section 7: IoU >= 0.99 against truth.
+  // docs/GOALS.md §6: IoU >= 0.99 against truth.
   EXPECT_GE(stack_iou, 0.99);
   EXPECT_GE(worst, 0.97) << "worst single slice";
 }

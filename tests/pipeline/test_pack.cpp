@@ -3,16 +3,46 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <map>
 
 #include "test_support.h"
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/nrrd.h"
 #include "vispack/format/reader.h"
-#include "vispack/pipeline/phantom.h"
+#include "vispack/phantom/phantom.h"
 #include "vispack/pipeline/run.h"
+#include "vispack/pipeline/slice_io.h"
 
 using namespace vispack;
 using namespace vispack::pipeline;
+using namespace vispack::phantom;
+
+namespace {
+
+// The intermediates pack reads for slice k, read back from the work folder.
+struct Slices {
+  cv::Mat rgb, mask, ct, labels;
+};
+Slices intermediates(const Config& config, int k) {
+  char name[32];
+  auto path = [&](const char* folder, const char* stem) {
+    std::snprintf(name, sizeof name, "%s_%04d.png", stem, k);
+    return config.work_dir + "/" + folder + "/" + name;
+  };
+  Slices s;
+  s.rgb = read_slice(path("register/registered", "rgb"));
+  s.mask = read_slice(path("mask", "mask"));
+  s.ct = read_slice(path("mask", "ct"));
+  s.labels = read_slice(path("labels", "labels"));
+  EXPECT_EQ(s.rgb.type(), CV_8UC3);
+  EXPECT_EQ(s.mask.type(), CV_8UC1);
+  EXPECT_EQ(s.ct.type(), CV_16UC1);
+  EXPECT_EQ(s.labels.type(), CV_16UC1);
+  return s;
+}
+
+}  // namespace
 
 TEST(Pack, MetadataDefectsAndReproducibility) {
   test::TempDir dir;
@@ -46,15 +76,36 @@ TEST(Pack, MetadataDefectsAndReproducibility) {
 
   // Agreement of the channels with truth/ is tested on the small phantom, with tolerances
   // derived from the stage goals, in test_truth.cpp (the tiny phantom is too coarse for that).
+  // Here: pack only packs, so every voxel equals the intermediates it read (docs/ARCHITECTURE.md
+  // "Work folder layout"): colour = registered slice, alpha = mask, HU = ct png - 32768, labels.
   auto meta = reader.metadata();
-  EXPECT_GT(std::count(labels8.begin(), labels8.end(), 0), 0);  // gel stays unlabelled
-  EXPECT_GT(std::count_if(rgba.begin(), rgba.end(), [](std::uint8_t v) { return v != 0; }), 0);
-  EXPECT_GT(std::count_if(ct.begin(), ct.end(), [](std::int16_t hu) { return hu > 0; }), 0);
+  std::uint64_t wrong_rgba = 0, wrong_ct = 0, wrong_labels = 0, body = 0;
+  for (int k = 0; k < dims[2]; ++k) {
+    const Slices s = intermediates(config, k);
+    for (int y = 0; y < dims[1]; ++y)
+      for (int x = 0; x < dims[0]; ++x) {
+        const std::size_t i = (std::size_t(k) * dims[1] + y) * dims[0] + x;
+        const cv::Vec3b c = s.rgb.at<cv::Vec3b>(y, x);
+        const std::uint8_t a = s.mask.at<std::uint8_t>(y, x);
+        body += a != 0;
+        if (rgba[4 * i] != c[0] || rgba[4 * i + 1] != c[1] || rgba[4 * i + 2] != c[2] ||
+            rgba[4 * i + 3] != a)
+          ++wrong_rgba;
+        if (ct[i] != int(s.ct.at<std::uint16_t>(y, x)) - 32768) ++wrong_ct;
+        if (labels8[i] != s.labels.at<std::uint16_t>(y, x)) ++wrong_labels;
+      }
+  }
+  EXPECT_EQ(wrong_rgba, 0u);
+  EXPECT_EQ(wrong_ct, 0u);
+  EXPECT_EQ(wrong_labels, 0u);
+  // The intermediates are not trivial: a body covering 10..90 % of the volume, gel outside.
+  EXPECT_GT(body, n / 10);
+  EXPECT_LT(body, n * 9 / 10);
 
   // Metadata: label table from the palette, provenance, slice defects.
   ASSERT_EQ(reader.label_table().size(), 9u);
   EXPECT_EQ(reader.label_table()[0].name, "skin");
-  EXPECT_EQ(meta["extra"]["provenance"]["vispack_version"], "0.1.0");
+  EXPECT_EQ(meta["extra"]["provenance"]["vispack_version"], VISPACK_PROJECT_VERSION);
   EXPECT_EQ(meta["extra"]["provenance"]["input_hashes"]["transforms"].get<std::string>().size(),
             16u);
   EXPECT_EQ(meta["extra"]["slices"]["count"], 24);
@@ -67,16 +118,60 @@ TEST(Pack, MetadataDefectsAndReproducibility) {
   run_pipeline(config, again);
   EXPECT_TRUE(read_file(config.output) == before);
 
-  // Downsampling by 2: dims halve (rounding up), labels stay IDs of the table.
+  // Downsampling by 2: dims halve, spacing doubles; colour, alpha and HU are the 2x2 block means
+  // of the full-resolution intermediates (within 1 for rounding), labels the block's majority
+  // (checked where 3 or 4 of the 4 agree; elsewhere one of the block's IDs).
   auto j = nlohmann::json::parse(read_file(dir / "config.json"));
   j["pack"]["downsample"] = 2;
   write_file_atomic(dir / "config.json", j.dump());
   Config half = load_config(dir / "config.json");
   run_pipeline(half, again);
   auto r2 = format::Reader::open(half.output);
-  EXPECT_EQ(r2.dims()[0], 48);
-  EXPECT_EQ(r2.dims()[1], 32);
+  const auto d2 = r2.dims();
+  ASSERT_EQ(d2[0], 48);
+  ASSERT_EQ(d2[1], 32);
+  ASSERT_EQ(d2[2], 24);
   EXPECT_DOUBLE_EQ(r2.spacing_mm()[0], 1.0);
+  EXPECT_DOUBLE_EQ(r2.spacing_mm()[1], 1.0);
+  const std::size_t n2 = std::size_t(d2[0]) * d2[1] * d2[2];
+  std::vector<std::uint8_t> rgba2(n2 * 4), labels2(n2);
+  std::vector<std::int16_t> ct2(n2);
+  r2.read_region("rgba", 0, 0, 0, 0, d2[0], d2[1], d2[2], rgba2.data());
+  r2.read_region("ct", 0, 0, 0, 0, d2[0], d2[1], d2[2], ct2.data());
+  r2.read_region("labels", 0, 0, 0, 0, d2[0], d2[1], d2[2], labels2.data());
+  std::uint64_t off_mean = 0, off_ct = 0, off_majority = 0, not_in_block = 0, majorities = 0;
+  for (int k = 0; k < d2[2]; ++k) {
+    const Slices s = intermediates(config, k);
+    for (int y = 0; y < d2[1]; ++y)
+      for (int x = 0; x < d2[0]; ++x) {
+        const std::size_t i = (std::size_t(k) * d2[1] + y) * d2[0] + x;
+        double sum[4] = {0, 0, 0, 0}, hu = 0;
+        std::map<int, int> votes;
+        for (int dy = 0; dy < 2; ++dy)
+          for (int dx = 0; dx < 2; ++dx) {
+            const cv::Vec3b c = s.rgb.at<cv::Vec3b>(2 * y + dy, 2 * x + dx);
+            for (int ch = 0; ch < 3; ++ch)
+              sum[ch] += c[ch];
+            sum[3] += s.mask.at<std::uint8_t>(2 * y + dy, 2 * x + dx);
+            hu += int(s.ct.at<std::uint16_t>(2 * y + dy, 2 * x + dx)) - 32768;
+            ++votes[s.labels.at<std::uint16_t>(2 * y + dy, 2 * x + dx)];
+          }
+        for (int ch = 0; ch < 4; ++ch)
+          if (std::abs(rgba2[4 * i + ch] - sum[ch] / 4) > 1.0) ++off_mean;
+        if (std::abs(ct2[i] - hu / 4) > 1.0) ++off_ct;
+        if (!votes.count(labels2[i])) ++not_in_block;
+        for (const auto& [id, count] : votes)
+          if (count >= 3) {
+            ++majorities;
+            if (labels2[i] != id) ++off_majority;
+          }
+      }
+  }
+  EXPECT_EQ(off_mean, 0u);
+  EXPECT_EQ(off_ct, 0u);
+  EXPECT_EQ(off_majority, 0u);
+  EXPECT_EQ(not_in_block, 0u);
+  EXPECT_GT(majorities, n2 / 2);
 
   std::string out;
   EXPECT_EQ(

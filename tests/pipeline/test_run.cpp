@@ -8,11 +8,12 @@
 #include "test_support.h"
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
-#include "vispack/pipeline/phantom.h"
+#include "vispack/phantom/phantom.h"
 #include "vispack/pipeline/run.h"
 
 using namespace vispack;
 using namespace vispack::pipeline;
+using namespace vispack::phantom;
 
 namespace {
 std::map<std::string, StageResult> by_stage(const std::vector<StageResult>& results) {

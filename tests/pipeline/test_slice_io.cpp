@@ -120,7 +120,9 @@ TEST(SliceIo, WriteIsDeterministic) {
     vp::write_image(dir / ("a" + ext), src);
     vp::write_image(dir / ("b" + ext), src);
     EXPECT_EQ(read_bytes(dir / ("a" + ext)), read_bytes(dir / ("b" + ext))) << ext;
-    if (ext == ".bmp") EXPECT_TRUE(equal(vp::read_slice(dir / ("a" + ext)), src));  // lossless
+    if (ext == ".bmp") {
+      EXPECT_TRUE(equal(vp::read_slice(dir / ("a" + ext)), src));  // lossless
+    }
   }
 }
 

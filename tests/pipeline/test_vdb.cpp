@@ -6,12 +6,15 @@
 
 #include "test_support.h"
 #include "vispack/common/atomic_file.h"
-#include "vispack/pipeline/phantom.h"
+#include "vispack/phantom/phantom.h"
 #include "vispack/pipeline/run.h"
 #include "vispack/pipeline/slice_io.h"
+#include "vispack/pipeline/stage_run.h"
+#include "vispack/pipeline/work_layout.h"
 
 using namespace vispack;
 using namespace vispack::pipeline;
+using namespace vispack::phantom;
 
 TEST(Vdb, GridsValuesAndVdbPrint) {
   test::TempDir dir;
@@ -51,25 +54,39 @@ TEST(Vdb, GridsValuesAndVdbPrint) {
   openvdb::Vec3d voxel = ct->voxelSize();
   EXPECT_DOUBLE_EQ(voxel[0], 0.5);
   EXPECT_DOUBLE_EQ(voxel[2], 1.0);
-  // Every voxel of slices 0, 11 and 23 against the intermediates (exact: HU and IDs are integers,
-  // colour is c / 255 in float).
+  // Every voxel of every slice against the intermediates (exact: HU and IDs are integers, colour
+  // is c / 255 in float, all three components), and inactive exactly outside the mask.
   auto ct_acc = ct->getConstAccessor();
   auto lab_acc = labels->getConstAccessor();
   auto rgb_acc = rgb->getConstAccessor();
-  for (int k : {0, 11, 23}) {
+  std::uint64_t checked = 0, wrong_active = 0, wrong_ct = 0, wrong_labels = 0, wrong_rgb = 0;
+  for (int k = 0; k < 24; ++k) {
     cv::Mat m = read_slice(mask_path(config, k)), c = read_slice(mask_ct_path(config, k)),
             l = read_slice(labels_path(config, k)), r = read_slice(registered_rgb_path(config, k));
     for (int y = 0; y < m.rows; ++y)
       for (int x = 0; x < m.cols; ++x) {
         openvdb::Coord ijk(x, y, k);
-        bool inside = m.at<std::uint8_t>(y, x) != 0;
-        ASSERT_EQ(ct_acc.isValueOn(ijk), inside) << x << "," << y << "," << k;
+        const bool inside = m.at<std::uint8_t>(y, x) != 0;
+        if (ct_acc.isValueOn(ijk) != inside || lab_acc.isValueOn(ijk) != inside ||
+            rgb_acc.isValueOn(ijk) != inside)
+          ++wrong_active;
         if (!inside) continue;
-        ASSERT_EQ(ct_acc.getValue(ijk), float(int(c.at<std::uint16_t>(y, x)) - 32768));
-        ASSERT_EQ(lab_acc.getValue(ijk), int(l.at<std::uint16_t>(y, x)));
-        ASSERT_NEAR(rgb_acc.getValue(ijk)[1], r.at<cv::Vec3b>(y, x)[1] / 255.0f, 1e-6);
+        ++checked;
+        if (ct_acc.getValue(ijk) != float(int(c.at<std::uint16_t>(y, x)) - 32768)) ++wrong_ct;
+        if (lab_acc.getValue(ijk) != int(l.at<std::uint16_t>(y, x))) ++wrong_labels;
+        const openvdb::Vec3s v = rgb_acc.getValue(ijk);
+        for (int i = 0; i < 3; ++i)
+          if (std::abs(v[i] - r.at<cv::Vec3b>(y, x)[i] / 255.0f) > 1e-6f) {
+            ++wrong_rgb;
+            break;
+          }
       }
   }
+  EXPECT_EQ(checked, mask_voxels);
+  EXPECT_EQ(wrong_active, 0u);
+  EXPECT_EQ(wrong_ct, 0u);
+  EXPECT_EQ(wrong_labels, 0u);
+  EXPECT_EQ(wrong_rgb, 0u);
   // Command line: a shard is refused with a usage error.
   EXPECT_EQ(
       test::run_command(

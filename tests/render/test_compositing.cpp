@@ -24,7 +24,7 @@ TEST(Opacity, CorrectionEdgeCases) {
 }
 
 TEST(Compositing, EqualSlicesMatchTheClosedForm) {
-  // DESIGN.md: at alpha = 0.002 an 8-bit buffer loses everything after ~1000 slices; float
+  // docs/GOALS.md §4: at alpha = 0.002 an 8-bit buffer loses everything after ~1000 slices; float
   // accumulation must follow 1 - (1 - a)^N. Tolerance 1e-4: float rounding over 4000 steps.
   for (double a : {0.002, 0.05, 0.5}) {
     for (int n : {1, 10, 1000, 4000}) {
@@ -176,7 +176,7 @@ TEST(Reference, HalvingTheStepLeavesTheImageUnchanged) {
     Image8 b = to_rgba8(render_reference(*v, cam, params, {4}));
     double psnr = psnr_rgb(a, b);
     // Opacity correction makes the step size a discretisation choice only; 40 dB is the
-    // GL-vs-reference bar of DESIGN.md, so the reference itself must do better.
+    // GL-vs-reference bar of docs/GOALS.md, so the reference itself must do better.
     EXPECT_GT(psnr, 40.0) << mode_name(m);
     const std::uint8_t black[3] = {0, 0, 0};
     EXPECT_GT(count_non_background(a, black), 64 * 64 / 10) << mode_name(m);

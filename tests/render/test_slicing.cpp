@@ -1,4 +1,4 @@
-// Slicing geometry: every hard case of DESIGN.md section 4.
+// Slicing geometry: every hard case of docs/GOALS.md §4.
 #include <gtest/gtest.h>
 
 #include <chrono>
@@ -40,7 +40,9 @@ void check_polygon(const std::vector<Vec3>& p, const Box3& box, Vec3 n, double d
     Vec3 a = p[i], b = p[(i + 1) % p.size()], c = p[(i + 2) % p.size()];
     EXPECT_LT(dot(cross(b - a, c - b), n), 1e-12 * scale * scale);
   }
-  if (!p.empty()) EXPECT_LT(signed_area(p, n), 0.0);  // CCW for a viewer looking along +n
+  if (!p.empty()) {
+    EXPECT_LT(signed_area(p, n), 0.0);  // CCW for a viewer looking along +n
+  }
 }
 
 double area(const std::vector<Vec3>& p, Vec3 n) {

@@ -14,7 +14,8 @@ void main() {
 }
 )";
 
-// Mode numbers follow render::Mode: 0 colour, 1 ct, 2 mip, 3 average, 4 iso, 5 labels, 6 mpr.
+// Mode numbers follow render::Mode: 0 colour, 1 ct, 2 mip, 3 average, 4 iso, 5 labels, 6 mpr,
+// 7 tf2d. Label shading follows render::LabelShading: 0 flat, 1 modulated, 2 ramp.
 inline constexpr const char* kSliceFragment = R"(#version 330 core
 in vec3 v_world;
 layout(location = 0) out vec4 o_colour;
@@ -42,6 +43,11 @@ uniform int u_jitter;
 uniform int u_clip;
 uniform vec4 u_clip_plane;
 uniform int u_has_rgba;
+uniform int u_has_ct;
+uniform int u_label_shading;
+uniform int u_iso_steps;
+uniform vec3 u_tf_range;  // value min, value max (HU), gradient max (HU/mm)
+uniform sampler2D u_tf2d;
 uniform sampler3D u_rgba;
 uniform sampler3D u_ct;
 uniform usampler3D u_labels;
@@ -66,6 +72,29 @@ float correct(float a, float ratio) {
   if (a >= 1.0) return 1.0;
   return 1.0 - pow(1.0 - a, ratio);
 }
+vec3 gradient_at(vec3 p) {
+  return vec3(hu_at(p + vec3(u_spacing.x, 0.0, 0.0)) - hu_at(p - vec3(u_spacing.x, 0.0, 0.0)),
+              hu_at(p + vec3(0.0, u_spacing.y, 0.0)) - hu_at(p - vec3(0.0, u_spacing.y, 0.0)),
+              hu_at(p + vec3(0.0, 0.0, u_spacing.z)) - hu_at(p - vec3(0.0, 0.0, u_spacing.z))) /
+         (2.0 * u_spacing);
+}
+vec4 tf2d(float v, float g) {
+  float t = clamp((v - u_tf_range.x) / max(u_tf_range.y - u_tf_range.x, 1e-6), 0.0, 1.0);
+  float u = clamp(g / max(u_tf_range.z, 1e-6), 0.0, 1.0);
+  return texture(u_tf2d, vec2((t * 127.0 + 0.5) / 128.0, (u * 63.0 + 0.5) / 64.0));
+}
+float label_intensity(vec3 p) {
+  if (u_has_ct != 0) return window01(hu_at(p));
+  vec4 c = colour_at(p);
+  vec3 rgb = min(c.rgb / max(c.a, 1e-6), vec3(1.0));
+  return dot(rgb, vec3(0.299, 0.587, 0.114));
+}
+vec3 shade_label(vec3 c, float t) {
+  t = clamp(t, 0.0, 1.0);
+  if (u_label_shading == 1) return c * t;
+  if (t < 0.5) return c * (2.0 * t);
+  return c + (vec3(1.0) - c) * (2.0 * t - 1.0);
+}
 float hash(vec2 q) { return fract(sin(dot(q, vec2(12.9898, 78.233))) * 43758.5453); }
 
 vec4 classify(vec3 p) {
@@ -80,11 +109,16 @@ vec4 classify(vec3 p) {
     vec4 c = ramp(t);
     return vec4(c.rgb, u_opacity * t * c.a);
   }
+  if (u_mode == 7) {
+    vec4 c = tf2d(hu_at(p), length(gradient_at(p)));
+    return vec4(c.rgb, u_opacity * c.a);
+  }
   uint id = label_at(p);
   if (id == 0u) return vec4(0.0);
   vec4 c = texelFetch(u_label_colours, ivec2(int(id & 255u), int(id >> 8u)), 0);
   float f = (u_highlight >= 0 && int(id) != u_highlight) ? u_dim : 1.0;
-  return vec4(c.rgb, c.a * u_opacity * f);
+  vec3 rgb = u_label_shading != 0 ? shade_label(c.rgb, label_intensity(p)) : c.rgb;
+  return vec4(rgb, c.a * u_opacity * f);
 }
 
 vec4 shade(vec4 colour, vec3 g, vec3 dir) {
@@ -105,7 +139,12 @@ void main() {
   float dray = u_delta / cosf;
   vec3 p = v_world;
   if (u_jitter != 0) p += dir * (dray * (hash(gl_FragCoord.xy) - 0.5));
-  if (u_clip != 0 && dot(u_clip_plane.xyz, p) > u_clip_plane.w) discard;
+  // No discard anywhere (it would disable llvmpipe's early depth test, which the early ray
+  // termination relies on): a removed sample writes the blend's neutral value instead.
+  if (u_clip != 0 && dot(u_clip_plane.xyz, p) > u_clip_plane.w) {
+    o_colour = u_mode == 2 ? vec4(-1e30, 0.0, 0.0, 0.0) : vec4(0.0);
+    return;
+  }
   if (u_mode == 2) {
     o_colour = vec4(hu_at(p), 1.0, 0.0, 0.0);
     return;
@@ -120,7 +159,10 @@ void main() {
   }
   if (u_mode == 4) {
     float f = hu_at(p);
-    if (f < u_iso) discard;
+    if (f < u_iso) {
+      o_colour = vec4(0.0);
+      return;
+    }
     vec3 ro = u_ortho != 0 ? p - dir * dot(p - u_eye, u_forward) : u_eye;
     float tp = dot(p - ro, dir);
     vec3 d = dir;
@@ -134,19 +176,42 @@ void main() {
     float tprev = max(tp - dray, t0);
     float fprev = hu_at(ro + dir * tprev);
     float th = tp;
-    if (fprev >= u_iso) th = tprev;
-    else if (f > fprev) th = tprev + (tp - tprev) * (u_iso - fprev) / (f - fprev);
+    if (fprev >= u_iso) {
+      th = tprev;
+    } else {
+      // Bisection between the two samples that bracket the crossing (render::refine_iso).
+      float ta = tprev, fa = fprev, tb = tp, fb = f;
+      for (int i = 0; i < u_iso_steps; ++i) {
+        float tm = 0.5 * (ta + tb);
+        float fm = hu_at(ro + dir * tm);
+        if (fm >= u_iso) { tb = tm; fb = fm; } else { ta = tm; fa = fm; }
+      }
+      th = fb > fa ? ta + (tb - ta) * (u_iso - fa) / (fb - fa) : tb;
+    }
     vec3 hit = ro + dir * th;
-    vec3 g = vec3(hu_at(hit + vec3(u_spacing.x, 0.0, 0.0)) - hu_at(hit - vec3(u_spacing.x, 0.0, 0.0)),
-                  hu_at(hit + vec3(0.0, u_spacing.y, 0.0)) - hu_at(hit - vec3(0.0, u_spacing.y, 0.0)),
-                  hu_at(hit + vec3(0.0, 0.0, u_spacing.z)) - hu_at(hit - vec3(0.0, 0.0, u_spacing.z))) /
-             (2.0 * u_spacing);
-    o_colour = shade(u_iso_colour, g, dir);
+    o_colour = shade(u_iso_colour, gradient_at(hit), dir);
     return;
   }
   vec4 s = classify(p);
   float a = correct(s.a, dray / u_delta0);
   o_colour = vec4(s.rgb * a, a);
+}
+)";
+
+// Early ray termination (front-to-back modes): a full-screen triangle at the near plane
+// (depth 0) that writes depth only where the accumulated opacity is saturated, so the depth
+// test (GL_LESS) rejects every later slice fragment there before it is shaded.
+inline constexpr const char* kTerminateVertex = R"(#version 330 core
+void main() {
+  vec2 p = vec2(float((gl_VertexID << 1) & 2), float(gl_VertexID & 2));
+  gl_Position = vec4(p * 2.0 - 1.0, -1.0, 1.0);
+}
+)";
+inline constexpr const char* kTerminateFragment = R"(#version 330 core
+uniform sampler2D u_acc;
+uniform float u_threshold;
+void main() {
+  if (texelFetch(u_acc, ivec2(gl_FragCoord.xy), 0).a < u_threshold) discard;
 }
 )";
 

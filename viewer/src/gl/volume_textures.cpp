@@ -11,6 +11,7 @@
 #include <thread>
 #include <vector>
 
+#include "texture_format.h"
 #include "vispack/common/error.h"
 #include "vispack/common/parallel.h"
 #include "vispack/render/reference.h"
@@ -40,37 +41,10 @@ int choose_level(const render::VolumeSource& source, int max_texture_size, std::
 
 namespace {
 
-struct Format {
-  GLint internal;
-  GLenum format, type;
-  GLint filter;
-};
-Format format_of(Channel c) {
-  switch (c) {
-    case Channel::kRgba:
-      return {GL_RGBA8, GL_RGBA, GL_UNSIGNED_BYTE, GL_LINEAR};
-    case Channel::kCt:
-      return {GL_R16_SNORM, GL_RED, GL_SHORT, GL_LINEAR};
-    case Channel::kLabels:
-      return {GL_R16UI, GL_RED_INTEGER, GL_UNSIGNED_SHORT, GL_NEAREST};
-  }
-  return {GL_RGBA8, GL_RGBA, GL_UNSIGNED_BYTE, GL_LINEAR};
-}
-
+using detail::format_of;
+using Format = detail::TextureFormat;
 Texture allocate(Channel c, const std::array<std::int64_t, 3>& dims) {
-  Format f = format_of(c);
-  Texture t = make_texture();
-  glBindTexture(GL_TEXTURE_3D, t.id());
-  glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MIN_FILTER, f.filter);
-  glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MAG_FILTER, f.filter);
-  for (GLenum w : {GL_TEXTURE_WRAP_S, GL_TEXTURE_WRAP_T, GL_TEXTURE_WRAP_R})
-    glTexParameteri(GL_TEXTURE_3D, w, GL_CLAMP_TO_EDGE);
-  glTexParameteri(GL_TEXTURE_3D, GL_TEXTURE_MAX_LEVEL, 0);
-  glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
-  glTexImage3D(GL_TEXTURE_3D, 0, f.internal, GLsizei(dims[0]), GLsizei(dims[1]), GLsizei(dims[2]),
-               0, f.format, f.type, nullptr);
-  check_gl("allocating a 3-D texture");
-  return t;
+  return detail::allocate_texture(c, dims);
 }
 
 struct Job {
@@ -126,7 +100,7 @@ struct VolumeTextures::Impl {
         }
         std::size_t i = next.fetch_add(1);
         if (i >= jobs.size()) break;
-        Item item{jobs[i], {}};
+        Item item{jobs[i], {}, {}};
         int bpv = render::channel_bytes(item.job.channel);
         item.data.resize(std::size_t(item.job.region.voxels()) * std::size_t(bpv));
         try {

@@ -1,19 +1,30 @@
-// The interactive viewer: a GLFW window (OpenGL core), the slice renderer, progressive loading
-// (coarsest level first, then the finest level that fits, brick by brick between frames),
-// lower resolution while the camera moves, and a Dear ImGui panel when ImGui is available.
+// The interactive viewer: a GLFW window (OpenGL core), the slice renderer over the GPU brick
+// cache (bricks paged by view: the coarsest brick first, refined as finer bricks arrive, decoded
+// on worker threads and uploaded ~10 ms per frame; coarser and at lower resolution while the
+// camera moves), and a Dear ImGui panel when ImGui is available (modes, window, iso, label
+// shading, the 2-D transfer function editor, segments, brick and lost-slice status).
 #include <epoxy/gl.h>
 // epoxy must come before GLFW (it replaces the GL headers).
 #include <GLFW/glfw3.h>
 
 #include <algorithm>
+#include <cctype>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
+#include <fstream>
 #include <memory>
+#include <sstream>
 #include <string>
+#include <vector>
 
 #include "vispack/common/error.h"
+#include "vispack/common/math_constants.h"
+#include "vispack/render/brick_tree.h"
+#include "vispack/render/lost_slices.h"
 #include "vispack/viewer/app.h"
+#include "vispack/viewer/brick_cache.h"
 #include "vispack/viewer/slice_renderer.h"
 #include "vispack/viewer/volume_textures.h"
 
@@ -77,7 +88,7 @@ void on_move(GLFWwindow* w, double x, double y) {
     s->orbit.zoom = std::clamp(s->orbit.zoom * std::exp(-0.01 * dy), 0.05, 50.0);
   } else {
     // Pan in the view plane, scaled by the orbit distance.
-    double az = s->orbit.azimuth_deg * M_PI / 180, el = s->orbit.elevation_deg * M_PI / 180;
+    double az = radians(s->orbit.azimuth_deg), el = radians(s->orbit.elevation_deg);
     render::Vec3 f{std::sin(az) * std::cos(el), -std::cos(az) * std::cos(el), std::sin(el)};
     render::Vec3 r = render::normalize_or(render::cross(f, {0, 0, -1}), {1, 0, 0});
     render::Vec3 u = render::cross(r, f);
@@ -100,7 +111,7 @@ void on_key(GLFWwindow* w, int key, int, int action, int) {
 #ifdef VISPACK_HAVE_IMGUI
   if (ImGui::GetCurrentContext() && ImGui::GetIO().WantCaptureKeyboard) return;
 #endif
-  if (key >= GLFW_KEY_1 && key <= GLFW_KEY_7) s->params.mode = render::Mode(key - GLFW_KEY_1);
+  if (key >= GLFW_KEY_1 && key <= GLFW_KEY_8) s->params.mode = render::Mode(key - GLFW_KEY_1);
   if (key == GLFW_KEY_J) s->params.jitter = !s->params.jitter;
   if (key == GLFW_KEY_EQUAL || key == GLFW_KEY_KP_ADD)
     s->params.slices_per_voxel = std::min(s->params.slices_per_voxel * 1.25, 16.0);
@@ -110,10 +121,69 @@ void on_key(GLFWwindow* w, int key, int, int action, int) {
   s->last_change = now();
 }
 
+// One command of a --script file (app.h).
+struct Command {
+  std::string verb, arg;
+  int line = 0;
+};
+
+std::vector<Command> read_script(const std::string& path) {
+  std::vector<Command> out;
+  if (path.empty()) return out;
+  std::ifstream in(path);
+  if (!in) throw IoError(cat(path, ": cannot read the script"));
+  std::string text;
+  for (int line = 1; std::getline(in, text); ++line) {
+    if (auto hash = text.find('#'); hash != std::string::npos) text.erase(hash);
+    std::istringstream words(text);
+    Command c;
+    c.line = line;
+    if (!(words >> c.verb)) continue;
+    std::getline(words >> std::ws, c.arg);
+    while (!c.arg.empty() && std::isspace(static_cast<unsigned char>(c.arg.back())))
+      c.arg.pop_back();
+    const bool needs_arg = c.verb != "wait";
+    if (c.verb != "azimuth" && c.verb != "elevation" && c.verb != "zoom" && c.verb != "mode" &&
+        c.verb != "wait" && c.verb != "screenshot")
+      throw UsageError(cat(path, ":", line, ": unknown command '", c.verb, "'"));
+    if (needs_arg && c.arg.empty())
+      throw UsageError(cat(path, ":", line, ": '", c.verb, "' needs an argument"));
+    if (c.verb == "mode" && !render::mode_from_name(c.arg))
+      throw UsageError(cat(path, ":", line, ": unknown mode '", c.arg, "'"));
+    if (c.verb == "azimuth" || c.verb == "elevation" || c.verb == "zoom") {
+      try {
+        std::size_t used = 0;
+        (void)std::stod(c.arg, &used);
+        if (used != c.arg.size()) throw std::invalid_argument(c.arg);
+      } catch (const std::exception&) {
+        throw UsageError(cat(path, ":", line, ": '", c.arg, "' is not a number"));
+      }
+    }
+    out.push_back(c);
+  }
+  return out;
+}
+
+// The window's frame (default framebuffer, after the volume and before the panel), row 0 at top.
+render::Image8 read_window(int w, int h) {
+  render::Image8 image(w, h);
+  std::vector<std::uint8_t> rows(image.rgba.size());
+  glBindFramebuffer(GL_FRAMEBUFFER, 0);
+  glPixelStorei(GL_PACK_ALIGNMENT, 1);
+  glReadPixels(0, 0, w, h, GL_RGBA, GL_UNSIGNED_BYTE, rows.data());
+  const std::size_t stride = std::size_t(w) * 4;
+  for (int y = 0; y < h; ++y)
+    std::memcpy(&image.rgba[std::size_t(y) * stride], &rows[std::size_t(h - 1 - y) * stride],
+                stride);
+  return image;
+}
+
 }  // namespace
 
 int run_window(const ViewOptions& options) {
-  std::unique_ptr<render::VolumeSource> source = render::open_packed(options.file);
+  std::shared_ptr<const render::VolumeSource> source =
+      render::fill_lost_slices(render::open_packed(options.file));
+  const std::vector<std::int64_t> lost = source->lost_slices();
   GlfwLibrary glfw;
   glfwWindowHint(GLFW_CONTEXT_VERSION_MAJOR, 3);
   glfwWindowHint(GLFW_CONTEXT_VERSION_MINOR, 3);
@@ -139,20 +209,12 @@ int run_window(const ViewOptions& options) {
   glfwSetScrollCallback(window, on_scroll);
   glfwSetKeyCallback(window, on_key);
 
-  GLint max3d = 0;
-  glGetIntegerv(GL_MAX_3D_TEXTURE_SIZE, &max3d);
-  int levels = source->level_count();
-  int target_level = options.level >= 0 ? std::min(options.level, levels - 1)
-                                        : choose_level(*source, max3d, options.max_gpu_mb << 20);
+  const int levels = source->level_count();
+  render::BrickTree tree(*source);
+  BrickCache cache(*source, options.max_gpu_mb << 20, options.threads);
+  const render::PlanOptions base_plan = plan_options(options, levels);
   SliceRenderer renderer;
-  // Coarsest level first: the first frame appears at once; the finest level streams in.
-  auto current = std::make_unique<VolumeTextures>();
-  current->upload(*source, levels - 1, options.threads);
-  std::unique_ptr<VolumeTextures> loading;
-  if (target_level != levels - 1) {
-    loading = std::make_unique<VolumeTextures>();
-    loading->begin(*source, target_level, options.threads);
-  }
+  std::vector<render::Tf2dWidget> tf_widgets = {render::Tf2dWidget{}};
 
 #ifdef VISPACK_HAVE_IMGUI
   IMGUI_CHECKVERSION();
@@ -172,16 +234,22 @@ int run_window(const ViewOptions& options) {
   float clip_offset = 0.0f;
 #endif
 
+  const std::vector<Command> script = read_script(options.script);
+  std::size_t next_command = 0;
   double frame_ms = 0;
   for (int frame = 0; !glfwWindowShouldClose(window); ++frame) {
     if (options.max_frames > 0 && frame >= options.max_frames) break;
     glfwPollEvents();
-    if (loading && loading->pump(0.010)) {  // at most ~10 ms of uploads per frame
-      for (const std::string& e : loading->stats().bad_brick_errors)
-        std::fprintf(stderr, "vispack-view: warning: %s; shown as missing\n", e.c_str());
-      current = std::move(loading);
-      state.last_change = now();
+    // Script: view changes run at once; wait/screenshot hold until the view is complete.
+    for (; next_command < script.size(); ++next_command) {
+      const Command& c = script[next_command];
+      if (c.verb == "wait" || c.verb == "screenshot") break;
+      if (c.verb == "azimuth") state.orbit.azimuth_deg = std::stod(c.arg);
+      if (c.verb == "elevation") state.orbit.elevation_deg = std::stod(c.arg);
+      if (c.verb == "zoom") state.orbit.zoom = std::stod(c.arg);
+      if (c.verb == "mode") state.params.mode = *render::mode_from_name(c.arg);
     }
+    if (!script.empty() && next_command >= script.size()) break;
     int fw = 1, fh = 1;
     glfwGetFramebufferSize(window, &fw, &fh);
     bool moving = now() - state.last_change < 0.25 || state.button >= 0;
@@ -194,14 +262,34 @@ int run_window(const ViewOptions& options) {
     params.mpr_target = orbit.target + orbit.pan_mm;
     render::Camera cam =
         render::orbit_camera(orbit, g0.box(), std::max(fw / scale, 1), std::max(fh / scale, 1));
+    // Bricks paged by view: plan with what is resident, ask for what is missing (coarsest
+    // first), upload for at most ~10 ms, draw.
+    const unsigned channels = render::channels_for(params, tree.present_channels());
+    render::PlanOptions popt = base_plan;
+    if (moving) popt.lod_pixels *= 2;
+    render::BrickPlan plan =
+        render::plan_bricks(tree, cam, params, popt, channels,
+                            [&](const render::BrickKey& k) { return cache.resident(k, channels); });
+    cache.request(plan.missing, channels);
+    std::size_t bad_before = cache.stats().bad_brick_errors.size();
+    cache.pump(0.010);
+    for (std::size_t i = bad_before; i < cache.stats().bad_brick_errors.size(); ++i)
+      std::fprintf(stderr, "vispack-view: warning: %s; shown as missing\n",
+                   cache.stats().bad_brick_errors[i].c_str());
+    cache.use(plan.draw);
     double t0 = now();
-    renderer.render(*current, cam, params);
+    renderer.render_bricks(cache, tree, plan, cam, params);
     glClearColor(0, 0, 0, 1);
     glBindFramebuffer(GL_FRAMEBUFFER, 0);
     glClear(GL_COLOR_BUFFER_BIT);
     renderer.resolve(0, 0, 0, fw, fh);
     glFinish();
     frame_ms = 0.9 * frame_ms + 0.1 * (now() - t0) * 1e3;
+    if (next_command < script.size() && !moving && plan.missing.empty() && !cache.busy()) {
+      const Command& c = script[next_command];
+      if (c.verb == "screenshot") render::write_png(c.arg, read_window(fw, fh));
+      ++next_command;
+    }
 
 #ifdef VISPACK_HAVE_IMGUI
     ImGui_ImplOpenGL3_NewFrame();
@@ -209,9 +297,9 @@ int run_window(const ViewOptions& options) {
     ImGui::NewFrame();
     state.want_mouse = ImGui::GetIO().WantCaptureMouse;
     ImGui::Begin("vispack");
-    const char* modes[] = {"colour", "ct", "mip", "average", "iso", "labels", "mpr"};
+    const char* modes[] = {"colour", "ct", "mip", "average", "iso", "labels", "mpr", "tf2d"};
     int mode = int(state.params.mode);
-    if (ImGui::Combo("mode (1-7)", &mode, modes, 7)) state.params.mode = render::Mode(mode);
+    if (ImGui::Combo("mode (1-8)", &mode, modes, 8)) state.params.mode = render::Mode(mode);
     float wc = float(state.params.window_center_hu), ww = float(state.params.window_width_hu);
     if (ImGui::SliderFloat("level (HU)", &wc, -1000, 2000)) state.params.window_center_hu = wc;
     if (ImGui::SliderFloat("window (HU)", &ww, 1, 4000)) state.params.window_width_hu = ww;
@@ -230,8 +318,91 @@ int run_window(const ViewOptions& options) {
       ImGui::SliderFloat("clip offset (mm)", &clip_offset, -500, 500);
       state.params.clip_d = render::dot(state.params.clip_normal, g0.box().centre()) + clip_offset;
     }
-    ImGui::Text("frame %.1f ms, level %d%s", frame_ms, current->level(),
-                loading ? " (loading finer level)" : "");
+    {
+      int per_level[64] = {0};
+      for (const render::BrickKey& k : plan.draw)
+        per_level[std::min(k.level, 63)]++;
+      std::string mix;
+      for (int l = 0; l < levels && l < 64; ++l)
+        if (per_level[l]) mix += cat(mix.empty() ? "" : " ", "L", l, ":", per_level[l]);
+      const BrickCacheStats& cs = cache.stats();
+      ImGui::Text("frame %.1f ms; bricks %zu (%s)", frame_ms, plan.draw.size(), mix.c_str());
+      ImGui::Text("skipped (empty) %lld, culled %lld, loading %zu", (long long)plan.skipped,
+                  (long long)plan.culled, plan.missing.size());
+      ImGui::Text("GPU %.0f / %lld MB", cs.resident_bytes / 1048576.0,
+                  (long long)options.max_gpu_mb);
+    }
+    if (!lost.empty()) {
+      std::string list;
+      for (std::size_t i = 0; i < lost.size() && i < 12; ++i)
+        list += cat(i ? ", " : "", lost[i]);
+      if (lost.size() > 12) list += ", ...";
+      ImGui::TextWrapped(
+          "%zu lost slices (black in the file) are shown interpolated from their "
+          "neighbours (display only): z = %s",
+          lost.size(), list.c_str());
+    }
+    if (state.params.mode == render::Mode::kLabels) {
+      const char* shadings[] = {"flat", "modulated by intensity", "ramp per segment"};
+      int sh = int(state.params.label_shading);
+      if (ImGui::Combo("label colour", &sh, shadings, 3))
+        state.params.label_shading = render::LabelShading(sh);
+    }
+    if (state.params.mode == render::Mode::kTf2d &&
+        ImGui::CollapsingHeader("2-D transfer function", ImGuiTreeNodeFlags_DefaultOpen)) {
+      bool changed = false;
+      for (std::size_t i = 0; i < tf_widgets.size(); ++i) {
+        render::Tf2dWidget& w = tf_widgets[i];
+        ImGui::PushID(int(i));
+        float v[2] = {float(w.value_lo), float(w.value_hi)};
+        float g[2] = {float(w.gradient_lo), float(w.gradient_hi)};
+        float c[4] = {w.colour.r, w.colour.g, w.colour.b, w.colour.a};
+        if (ImGui::DragFloat2("HU range", v, 5.0f, -1000, 3000)) {
+          w.value_lo = v[0];
+          w.value_hi = std::max(v[1], v[0] + 1);
+          changed = true;
+        }
+        if (ImGui::DragFloat2("|gradient| range", g, 1.0f, 0, 400)) {
+          w.gradient_lo = g[0];
+          w.gradient_hi = std::max(g[1], g[0]);
+          changed = true;
+        }
+        if (ImGui::ColorEdit4("colour, opacity", c)) {
+          w.colour = {c[0], c[1], c[2], c[3]};
+          changed = true;
+        }
+        if (ImGui::Button("remove")) {
+          tf_widgets.erase(tf_widgets.begin() + std::ptrdiff_t(i));
+          changed = true;
+          ImGui::PopID();
+          break;
+        }
+        ImGui::Separator();
+        ImGui::PopID();
+      }
+      if (ImGui::Button("add widget")) {
+        tf_widgets.push_back(render::Tf2dWidget{});
+        changed = true;
+      }
+      if (changed) state.params.tf2d = render::make_tf2d(tf_widgets);
+      // Preview: value to the right, gradient magnitude upwards, colour × opacity.
+      ImDrawList* dl = ImGui::GetWindowDrawList();
+      ImVec2 o = ImGui::GetCursorScreenPos();
+      const float cw = 2.5f, ch = 2.5f;
+      const render::TransferFunction2D& tf = state.params.tf2d;
+      for (int j = 0; j < render::TransferFunction2D::kGradients; j += 2)
+        for (int i = 0; i < render::TransferFunction2D::kValues; i += 2) {
+          const render::Rgba& e =
+              tf.table[std::size_t(j) * render::TransferFunction2D::kValues + std::size_t(i)];
+          ImU32 col =
+              IM_COL32(int(255 * e.r * e.a), int(255 * e.g * e.a), int(255 * e.b * e.a), 255);
+          float x = o.x + cw * float(i / 2), y = o.y + ch * float(31 - j / 2);
+          dl->AddRectFilled(ImVec2(x, y), ImVec2(x + cw, y + ch), col);
+        }
+      ImGui::Dummy(ImVec2(cw * 64, ch * 32));
+      ImGui::Text("HU %.0f .. %.0f (x), |gradient| 0 .. %.0f HU/mm (y)", tf.value_min, tf.value_max,
+                  tf.gradient_max);
+    }
     if (!labels.empty()) {
       ImGui::InputText("search", search, sizeof(search));
       ImGui::BeginChild("segments", ImVec2(0, 200), true);

@@ -3,11 +3,11 @@
 #include <algorithm>
 #include <cmath>
 
+#include "vispack/common/math_constants.h"
 #include "vispack/render/slicing.h"
 
 namespace vispack::render {
 namespace {
-constexpr double kPi = 3.14159265358979323846;
 double finite_or(double v, double fallback) {
   return std::isfinite(v) ? v : fallback;
 }

@@ -1,7 +1,5 @@
 #include "vispack/render/image.h"
 
-#include <png.h>
-
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -9,6 +7,7 @@
 
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
+#include "vispack/common/image_io.h"
 
 namespace vispack::render {
 
@@ -60,44 +59,18 @@ std::int64_t count_non_background(const Image8& image, const std::uint8_t backgr
   return count;
 }
 
-namespace {
-void append(png_structp png, png_bytep data, png_size_t size) {
-  auto* out = static_cast<std::string*>(png_get_io_ptr(png));
-  out->append(reinterpret_cast<const char*>(data), size);
-}
-void flush(png_structp) {}
-}  // namespace
-
 void write_png(const std::string& path, const Image8& image, bool keep_alpha) {
   if (image.width <= 0 || image.height <= 0)
     throw IoError(cat(path, ": cannot write an empty image"));
-  std::string bytes;
-  png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, nullptr, nullptr, nullptr);
-  png_infop info = png ? png_create_info_struct(png) : nullptr;
-  if (!png || !info) {
-    png_destroy_write_struct(&png, &info);
-    throw IoError(cat(path, ": cannot initialise libpng"));
+  if (keep_alpha) {
+    write_image_file(path, ImageView{image.width, image.height, 4, 8, image.rgba.data(), 0});
+    return;
   }
-  int channels = keep_alpha ? 4 : 3;
-  std::vector<std::uint8_t> row(std::size_t(image.width) * channels);
-  if (setjmp(png_jmpbuf(png))) {
-    png_destroy_write_struct(&png, &info);
-    throw IoError(cat(path, ": PNG encoding failed"));
-  }
-  png_set_write_fn(png, &bytes, append, flush);
-  png_set_IHDR(png, info, png_uint_32(image.width), png_uint_32(image.height), 8,
-               keep_alpha ? PNG_COLOR_TYPE_RGBA : PNG_COLOR_TYPE_RGB, PNG_INTERLACE_NONE,
-               PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
-  png_write_info(png, info);
-  for (int y = 0; y < image.height; ++y) {
-    for (int x = 0; x < image.width; ++x)
-      for (int c = 0; c < channels; ++c)
-        row[std::size_t(x) * channels + c] = image.at(x, y)[c];
-    png_write_row(png, row.data());
-  }
-  png_write_end(png, nullptr);
-  png_destroy_write_struct(&png, &info);
-  write_file_atomic(path, bytes);
+  std::vector<std::uint8_t> rgb(std::size_t(image.width) * image.height * 3);
+  for (std::size_t i = 0, n = std::size_t(image.width) * image.height; i < n; ++i)
+    for (int c = 0; c < 3; ++c)
+      rgb[3 * i + std::size_t(c)] = image.rgba[4 * i + std::size_t(c)];
+  write_image_file(path, ImageView{image.width, image.height, 3, 8, rgb.data(), 0});
 }
 
 }  // namespace vispack::render

@@ -1,4 +1,5 @@
 // VolumeSource over the memory-mapped format reader (vispack::format::Reader).
+#include <algorithm>
 #include <cstring>
 #include <stdexcept>
 
@@ -45,6 +46,34 @@ class PackedSource final : public VolumeSource {
     return out;
   }
   int brick_edge() const override { return reader_.brick_edge(); }
+  BrickStats brick_stats(Channel c, int level,
+                         const std::array<std::int64_t, 3>& b) const override {
+    int idx = index_[int(c)];
+    if (idx < 0) throw std::out_of_range(cat(reader_.path(), ": no channel ", channel_name(c)));
+    const format::BrickInfo& info = reader_.brick(idx, level, b[0], b[1], b[2]);
+    BrickStats s;
+    s.min = info.min;
+    s.max = info.max;
+    if (c == Channel::kLabels) s.labels = reader_.brick_labels(info);
+    return s;
+  }
+  std::vector<std::int64_t> lost_slices() const override {
+    std::vector<std::int64_t> out;
+    const nlohmann::json& m = reader_.metadata();
+    auto extra = m.find("extra");
+    if (extra == m.end() || !extra->is_object()) return out;
+    auto slices = extra->find("slices");
+    if (slices == extra->end() || !slices->is_object()) return out;
+    auto black = slices->find("black");
+    if (black == slices->end() || !black->is_array()) return out;
+    const std::int64_t nz = reader_.dims(0)[2];
+    for (const nlohmann::json& k : *black)  // ignore anything that is not a slice of the volume
+      if (k.is_number_integer() && k.get<std::int64_t>() >= 0 && k.get<std::int64_t>() < nz)
+        out.push_back(k.get<std::int64_t>());
+    std::sort(out.begin(), out.end());
+    out.erase(std::unique(out.begin(), out.end()), out.end());
+    return out;
+  }
   void read_region(Channel c, int level, const Region& r, void* out) const override {
     int idx = index_[int(c)];
     if (idx < 0) throw std::out_of_range(cat(reader_.path(), ": no channel ", channel_name(c)));

@@ -107,6 +107,15 @@ std::uint16_t VolumeSampler::label(Vec3 p) const {
   return data_.labels[std::size_t(data_.index(idx[0], idx[1], idx[2]))];
 }
 
+double label_intensity(const VolumeSampler& sampler, const RenderParams& params, Vec3 p) {
+  if (sampler.data().has(Channel::kCt))
+    return window01(sampler.hu(p), params.window_center_hu, params.window_width_hu);
+  Rgba c = sampler.colour(p);
+  float inv = 1.0f / std::max(c.a, 1e-6f);
+  return 0.299 * std::min(c.r * inv, 1.0f) + 0.587 * std::min(c.g * inv, 1.0f) +
+         0.114 * std::min(c.b * inv, 1.0f);
+}
+
 Rgba classify(const VolumeSampler& sampler, const RenderParams& params, Vec3 p) {
   switch (params.mode) {
     case Mode::kColour: {
@@ -133,6 +142,13 @@ Rgba classify(const VolumeSampler& sampler, const RenderParams& params, Vec3 p) 
                      ? params.dim_factor
                      : 1.0;
       c.a = float(c.a * params.opacity * f);
+      if (params.label_shading != LabelShading::kFlat)
+        c = shade_label(c, params.label_shading, label_intensity(sampler, params, p));
+      return c;
+    }
+    case Mode::kTf2d: {
+      Rgba c = params.tf2d.sample(sampler.hu(p), length(sampler.hu_gradient(p)));
+      c.a = float(params.opacity * c.a);
       return c;
     }
     default:
@@ -148,6 +164,22 @@ double reference_length(const LevelGeometry& g) {
 double slice_spacing(const Camera& camera, const LevelGeometry& g, double slices_per_voxel) {
   double s = std::isfinite(slices_per_voxel) ? std::clamp(slices_per_voxel, 1.0 / 64, 1024.0) : 2.0;
   return voxel_length_along(camera.forward, g.spacing_mm) / s;
+}
+
+double refine_iso(const VolumeSampler& sampler, const Ray& ray, double iso, double ta, double fa,
+                  double tb, double fb) {
+  for (int i = 0; i < kIsoBisectionSteps; ++i) {
+    double tm = 0.5 * (ta + tb);
+    double fm = sampler.hu(ray.origin + ray.direction * tm);
+    if (fm >= iso) {
+      tb = tm;
+      fb = fm;
+    } else {
+      ta = tm;
+      fa = fm;
+    }
+  }
+  return fb > fa ? ta + (tb - ta) * (iso - fa) / (fb - fa) : tb;
 }
 
 namespace {
@@ -233,8 +265,8 @@ Rgba render_pixel(const VolumeSampler& sampler, const Camera& cam, const RenderP
       double f = sampler.hu(p);
       if (f >= params.iso_hu) {
         double th = t;
-        if (!prev_clipped && f_prev < params.iso_hu && f > f_prev)
-          th = t_prev + (t - t_prev) * (params.iso_hu - f_prev) / (f - f_prev);
+        if (!prev_clipped && f_prev < params.iso_hu)
+          th = refine_iso(sampler, ray, params.iso_hu, t_prev, f_prev, t, f);
         Vec3 hit = ray.origin + ray.direction * th;
         return shade_iso(params.iso_colour, sampler.hu_gradient(hit), ray.direction);
       }
@@ -266,7 +298,8 @@ ImageF render_reference(const VolumeData& data, const Camera& camera, const Rend
   Box3 box = data.geometry.box();
   double steps = options.steps_per_voxel > 0 ? options.steps_per_voxel : 16.0;
   double step = voxel_length_along(camera.forward, data.geometry.spacing_mm) / steps;
-  double delta0 = reference_length(data.geometry);
+  double delta0 =
+      params.reference_length_mm > 0 ? params.reference_length_mm : reference_length(data.geometry);
   parallel_for(camera.height, resolve_threads(options.threads), [&](std::int64_t y) {
     for (int x = 0; x < camera.width; ++x) {
       Ray ray = camera.ray(x + 0.5, double(y) + 0.5);

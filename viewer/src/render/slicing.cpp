@@ -151,6 +151,48 @@ SliceLattice slice_lattice(const Box3& box, Vec3 normal, double spacing, double 
   return lat;
 }
 
+double box_dmin(const Box3& box, Vec3 normal) {
+  double len = length(normal);
+  if (!box.valid() || !is_finite(normal) || !(len > 0)) return std::nan("");
+  Vec3 n = normal / len;
+  double dmin = 1e300;
+  for (int i = 0; i < 8; ++i)
+    dmin = std::min(dmin, dot(n, box.corner(i)));
+  return dmin;
+}
+
+SliceLattice slice_lattice_tile(const Box3& box, Vec3 normal, double spacing, double min_d,
+                                double volume_dmin, std::int64_t max_slices) {
+  SliceLattice lat;
+  lat.spacing = spacing;
+  if (!box.valid() || !is_finite(normal) || !std::isfinite(spacing) || !(spacing > 0)) return lat;
+  double len = length(normal);
+  if (!(len > 0) || !std::isfinite(len)) return lat;
+  lat.normal = normal / len;
+  double dmin = 1e300, dmax = -1e300;
+  for (int i = 0; i < 8; ++i) {
+    double d = dot(lat.normal, box.corner(i));
+    dmin = std::min(dmin, d);
+    dmax = std::max(dmax, d);
+  }
+  // The lowest plane: d >= dmin (> dmin at the volume's own lowest face, and > min_d, the near
+  // plane, as slice_lattice).
+  double first = std::ceil(dmin / spacing);
+  if (dmin <= volume_dmin && first * spacing <= dmin) first += 1.0;
+  if (std::isfinite(min_d) && min_d >= dmin)
+    first = std::max(first, std::floor(min_d / spacing) + 1.0);
+  double last = std::ceil(dmax / spacing) - 1.0;  // d < dmax
+  const double limit = 4e18;
+  if (!std::isfinite(first) || std::fabs(first) > limit || max_slices <= 0) return lat;
+  if (!(last <= limit)) last = first + double(max_slices) - 1.0;
+  if (last < first) return lat;
+  double count = last - first + 1.0;
+  if (count > double(max_slices)) count = double(max_slices);
+  lat.first_k = static_cast<std::int64_t>(first);
+  lat.count = static_cast<std::int64_t>(count);
+  return lat;
+}
+
 std::vector<Vec3> slice_triangles(const Box3& box, const SliceLattice& lattice,
                                   bool back_to_front) {
   std::vector<Vec3> tris;

@@ -1,5 +1,6 @@
 #include "vispack/render/volume.h"
 
+#include <algorithm>
 #include <cstring>
 #include <stdexcept>
 
@@ -21,6 +22,61 @@ const char* channel_name(Channel c) {
 
 int channel_bytes(Channel c) {
   return c == Channel::kRgba ? 4 : 2;
+}
+
+std::array<std::int64_t, 3> brick_grid(const VolumeSource& source, int level) {
+  LevelGeometry g = source.level(level);
+  std::int64_t e = std::max(1, source.brick_edge());
+  return {(g.dims[0] + e - 1) / e, (g.dims[1] + e - 1) / e, (g.dims[2] + e - 1) / e};
+}
+
+Region brick_region(const VolumeSource& source, int level, const std::array<std::int64_t, 3>& b) {
+  LevelGeometry g = source.level(level);
+  std::int64_t e = std::max(1, source.brick_edge());
+  Region r;
+  for (int a = 0; a < 3; ++a) {
+    if (b[a] < 0 || b[a] * e >= g.dims[a])
+      throw std::out_of_range(cat(source.name(), ": brick outside level ", level));
+    r.offset[a] = b[a] * e;
+    r.size[a] = std::min(e, g.dims[a] - r.offset[a]);
+  }
+  return r;
+}
+
+BrickStats VolumeSource::brick_stats(Channel c, int level,
+                                     const std::array<std::int64_t, 3>& brick) const {
+  Region r = brick_region(*this, level, brick);
+  std::vector<std::uint8_t> buf(std::size_t(r.voxels()) * std::size_t(channel_bytes(c)));
+  read_region(c, level, r, buf.data());
+  BrickStats s;
+  std::size_t n = std::size_t(r.voxels());
+  if (n == 0) return s;
+  if (c == Channel::kRgba) {
+    for (int k = 0; k < 4; ++k) {
+      s.min[k] = 255;
+      s.max[k] = 0;
+    }
+    for (std::size_t i = 0; i < n; ++i)
+      for (int k = 0; k < 4; ++k) {
+        s.min[k] = std::min<std::int64_t>(s.min[k], buf[4 * i + k]);
+        s.max[k] = std::max<std::int64_t>(s.max[k], buf[4 * i + k]);
+      }
+  } else if (c == Channel::kCt) {
+    const auto* v = reinterpret_cast<const std::int16_t*>(buf.data());
+    auto mm = std::minmax_element(v, v + n);
+    s.min[0] = *mm.first;
+    s.max[0] = *mm.second;
+  } else {
+    const auto* v = reinterpret_cast<const std::uint16_t*>(buf.data());
+    std::vector<bool> seen(65536, false);
+    for (std::size_t i = 0; i < n; ++i)
+      seen[v[i]] = true;
+    for (std::uint32_t id = 0; id < 65536; ++id)
+      if (seen[id]) s.labels.push_back(id);
+    s.min[0] = s.labels.front();
+    s.max[0] = s.labels.back();
+  }
+  return s;
 }
 
 VolumeData load_level(const VolumeSource& source, int level) {

@@ -41,7 +41,8 @@ class Args {
                                       const std::string& help);
   std::optional<double> option_double(const std::string& name, const std::string& meta,
                                       const std::string& help);
-  // Next positional argument (required unless `optional`); empty string when absent+optional.
+  // Next positional argument (required unless `optional`); empty string when absent (a missing
+  // required one is reported by done(), after any unknown option).
   std::string positional(const std::string& meta, const std::string& help, bool optional = false);
   // Call after declaring everything: handles --help (prints usage, exits 0) and rejects
   // unknown flags or extra arguments with a UsageError.
@@ -56,6 +57,7 @@ class Args {
   std::vector<bool> used_;
   std::vector<std::string> help_lines_;
   bool help_requested_ = false;
+  std::string missing_;  // meta of the first required positional argument that is absent
 };
 
 // Parses "A:B" (half-open slice range; either side may be empty) into [first, last).

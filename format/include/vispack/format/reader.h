@@ -4,12 +4,14 @@
 // version, every header offset and size against the file size, the table checksum (header +
 // metadata + index + label IDs), the metadata JSON (types and ranges of every key it uses),
 // and every index entry (position, codec, alignment, bounds, no overlap, label-set range).
-// A file that fails any check is refused with a FormatError naming the file and the field or
-// brick; nothing is read out of bounds. ReaderLimits bounds what a header may ask for, so a
-// hostile header is refused by a check rather than by running out of memory.
+// A file that fails any check is refused with a FileDefect (a FormatError naming the file and
+// the field or brick, carrying a numbered Finding, findings.h); nothing is read out of bounds.
+// ReaderLimits bounds what a header may ask for, so a hostile header is refused by a check rather
+// than by running out of memory.
 //
 // Brick payload checksums are not checked on every read (that would cost a full hash per
-// decode); verify() checks them all, or pass verify_checksum = true to decode_brick.
+// decode); check() / verify() check them all, or pass verify_checksum = true to decode_brick.
+// Part of vispack_format_reader (links the format core, zstd, xxHash; never the writer).
 //
 // Thread-safety: after open(), every const member function may be called from several threads
 // at once (the viewer decodes bricks on worker threads). A Reader is movable, not copyable;
@@ -26,27 +28,12 @@
 
 #include <nlohmann/json.hpp>
 
+#include "vispack/format/findings.h"
+#include "vispack/format/geometry.h"
+#include "vispack/format/limits.h"
 #include "vispack/format/types.h"
 
 namespace vispack::format {
-
-// Limits a file's header and metadata must respect (defaults suit any real volume).
-struct ReaderLimits {
-  std::uint64_t max_metadata_bytes = std::uint64_t(64) << 20;  // JSON block
-  std::uint64_t max_index_entries = std::uint64_t(1) << 26;    // bricks in the whole file
-  std::uint64_t max_label_ids = std::uint64_t(1) << 28;        // label-set entries in total
-  std::int64_t max_dim = (std::int64_t(1) << 31) - 1;          // voxels along one axis
-  std::uint64_t max_level_voxels = std::uint64_t(1) << 48;     // product of one level's dims
-};
-
-// Geometry of one level of the pyramid. Level L voxel i covers level-0 voxels
-// [i * 2^L, (i + 1) * 2^L) on each axis (clipped to the volume).
-struct LevelInfo {
-  std::array<std::int64_t, 3> dims{0, 0, 0};    // voxels: ceil(dims0 / 2^L)
-  std::array<std::int64_t, 3> bricks{0, 0, 0};  // brick grid: ceil(dims / brick_edge)
-  std::array<double, 3> spacing_mm{1, 1, 1};    // spacing0 * 2^L
-  std::array<double, 3> origin_mm{0, 0, 0};     // origin0 + (2^L - 1) / 2 * spacing0
-};
 
 // A read-only view of bytes inside the memory map.
 struct ByteView {
@@ -119,7 +106,8 @@ class Reader {
   // Decodes one brick into `out` (at least brick_bytes(channel) bytes): edge^3 voxels, x
   // fastest, padding replicated from the last valid voxel on each axis. With verify_checksum
   // the payload's xxHash64 is checked first. Throws FormatError naming the file and brick if
-  // the payload does not decode to exactly brick_bytes bytes or the checksum differs;
+  // the payload does not decode to exactly brick_bytes bytes or the checksum differs (a
+  // FileDefect of kind kPayloadDecode or kPayloadChecksum);
   // std::invalid_argument if out_size is too small.
   void decode_brick(const BrickInfo& brick, void* out, std::size_t out_size,
                     bool verify_checksum = false) const;
@@ -144,7 +132,12 @@ class Reader {
 
   // Checks every brick payload's checksum (and, with `deep`, that it decodes and that its
   // min/max/label set match the index) and that every byte not covered by the header, the
-  // metadata, the index, the label IDs or a payload is zero. Returns the first problem.
+  // metadata, the index, the label IDs or a payload is zero. Returns every finding (kinds
+  // 8..12 of findings.h): at most one per brick (its first problem), in index order, then one
+  // per padding run holding a non-zero byte, in file order. Empty: the file is sound.
+  // Bricks are checked on `threads` threads (0 = resolve_threads()).
+  std::vector<Finding> check(bool deep = false, int threads = 0) const;
+  // The first finding of check() as a VerifyResult (ok when there is none).
   VerifyResult verify(bool deep = false, int threads = 0) const;
 
  private:

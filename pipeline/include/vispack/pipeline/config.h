@@ -1,4 +1,5 @@
-// The pipeline configuration: one JSON file (docs/ARCHITECTURE.md "The config", configs/schema.json).
+// The pipeline configuration: one JSON file (docs/ARCHITECTURE.md "The config",
+// configs/schema.json).
 //
 // load_config() checks every key: an unknown key, a wrong type, a value out of range, a missing
 // folder or a pattern that matches no file is a ConfigError naming the key (as a JSON path such
@@ -14,42 +15,40 @@
 
 #include <nlohmann/json.hpp>
 
+#include "vispack/pipeline/transforms.h"
+
 namespace vispack::pipeline {
 
 // Layout of header-less raw slices (NLM Visible Human style).
 struct RawLayout {
   int width = 0, height = 0;
-  int channels = 1;         // 1 (grey) or 3 (RGB)
-  bool planar = false;      // true: all R, then all G, then all B ("non-interleaved")
-  int bits = 8;             // 8 or 16
+  int channels = 1;     // 1 (grey) or 3 (RGB)
+  bool planar = false;  // true: all R, then all G, then all B ("non-interleaved")
+  int bits = 8;         // 8 or 16
   bool big_endian = false;
   std::uint64_t header_bytes = 0;  // bytes skipped at the start of each file
 };
 
 // One slice folder: files matched by `pattern` ({n} = the slice number), sorted by number.
 struct SliceSource {
-  std::string dir;       // absolute
-  std::string pattern;   // e.g. "rgb_{n}.png"
+  std::string dir;               // absolute
+  std::string pattern;           // e.g. "rgb_{n}.png"
   std::optional<RawLayout> raw;  // header-less raw slices when set; else read via OpenImageIO
-};
-
-struct RigidGuess {
-  double scale = 1.0, rotation_deg = 0.0, dx_px = 0.0, dy_px = 0.0;
 };
 
 struct CtSource : SliceSource {
   std::array<double, 2> pixel_spacing_mm{1.0, 1.0};
-  double slope = 1.0;          // hu = stored * slope + intercept
+  double slope = 1.0;  // hu = stored * slope + intercept
   double intercept = -1024.0;
-  int slice_offset = 0;        // CT slice (k + slice_offset) lies on output slice k
+  int slice_offset = 0;  // CT slice (k + slice_offset) lies on output slice k
 };
 
 struct SegSource : SliceSource {
-  std::string palette;         // absolute path of palette.json
-  std::string mode = "colour"; // "colour" (colour-coded) or "id" (integer label images)
-  double tolerance = 24.0;     // max Euclidean RGB distance for nearest-colour matching
-  bool strict = false;         // an out-of-tolerance colour is an error instead of label 0
-  std::string id_map;          // mode "id": optional JSON {"<input id>": <output id>}, absolute
+  std::string palette;          // absolute path of palette.json
+  std::string mode = "colour";  // "colour" (colour-coded) or "id" (integer label images)
+  double tolerance = 24.0;      // max Euclidean RGB distance for nearest-colour matching
+  bool strict = false;          // an out-of-tolerance colour is an error instead of label 0
+  std::string id_map;           // mode "id": optional JSON {"<input id>": <output id>}, absolute
 };
 
 struct RegisterOptions {
@@ -57,9 +56,18 @@ struct RegisterOptions {
   std::string method = "phase+ecc";  // "phase", "phase+ecc", "none"
   double ecc_scale = 0.5;            // ECC refinement at this fraction of full resolution
   int ecc_iterations = 50;
-  double jump_px = 6.0;              // an inter-slice motion above this is flagged as a jump
-  RigidGuess ct_initial;             // starting guess for the CT -> RGB alignment
-  bool ct_refine = true;             // refine ct_initial from the body outlines
+  double jump_px = 6.0;  // an inter-slice motion above this is flagged as a jump
+  // With CT, the output grid is the CT's frame at the colour resolution (docs/ARCHITECTURE.md
+  // "The output frame"): CT pixel u lands on output q = c + s·R(rotation_deg)(u − c_ct) + d,
+  // s = ct.pixel_spacing_mm[0] / spacing_mm[0]. This is that definition's rotation (degrees)
+  // and shift (output pixels); default identity: axis-aligned, centre on centre.
+  Rigid output_frame;
+  // What ties the stack to a drift-free frame: "ct" (every colour slice aligned to its CT
+  // slice), "fiducials" (tubes in the gel), "none" (slice-to-slice only: absolute drift is not
+  // observable, the report says so) or "auto" (ct when configured, else fiducials when found,
+  // else none).
+  std::string anchor = "auto";
+  std::string overrides;  // absolute path of the per-slice override file; empty = none
 };
 
 struct MaskOptions {
@@ -67,14 +75,14 @@ struct MaskOptions {
   int opening_px = 1;            // morphological opening radius on the colour grid
   bool refine_gel = true;        // refine the edge by distance to the gel colour
   std::optional<std::array<int, 3>> gel_colour;  // RGB of the gel; estimated when absent
-  double gel_distance = 40.0;    // colour distance under which a boundary pixel counts as gel
+  double gel_distance = 40.0;  // colour distance under which a boundary pixel counts as gel
 };
 
 struct PackOptions {
-  int brick_edge = 64;   // power of two, 8..256
-  int zstd_level = 3;    // 0 = raw bricks, 1..22
-  int downsample = 1;    // integer factor applied to x and y of the output grid
-  int threads = 0;       // 0 = all cores
+  int brick_edge = 64;  // power of two, 8..256
+  int zstd_level = 3;   // 0 = raw bricks, 1..22
+  int downsample = 1;   // integer factor applied to x and y of the output grid
+  int threads = 0;      // 0 = all cores
 };
 
 struct VdbOptions {
@@ -82,11 +90,11 @@ struct VdbOptions {
 };
 
 struct Config {
-  std::string path;        // the config file (absolute)
+  std::string path;  // the config file (absolute)
   std::string name;
-  std::string work_dir;    // absolute
-  std::string output;      // packed file, absolute
-  std::string vdb_output;  // absolute; empty = no export
+  std::string work_dir;                             // absolute
+  std::string output;                               // packed file, absolute
+  std::string vdb_output;                           // absolute; empty = no export
   std::array<double, 3> spacing_mm{1.0, 1.0, 1.0};  // output grid (x, y, z) before downsampling
   SliceSource rgb;
   std::optional<CtSource> ct;
@@ -100,6 +108,17 @@ struct Config {
 
 // Loads and validates a config file. Throws ConfigError (bad content) or IoError (unreadable).
 Config load_config(const std::string& path);
+
+// The config as JSON in the loader's schema: every key written with its value (defaults
+// included), paths relative to `base_dir` (default: the folder of config.path; absolute paths
+// are kept when no relative form exists). load_config of the written file gives back the same
+// Config (raw_json aside). Pure; thread-safe.
+nlohmann::json config_to_json(const Config& config);
+nlohmann::json config_to_json(const Config& config, const std::string& base_dir);
+
+// Writes config_to_json(config, folder of `path`) to `path` atomically (2-space indented JSON).
+// Throws IoError when the file cannot be written.
+void write_config(const std::string& path, const Config& config);
 
 // Every key path the loader accepts ("ct.raw.width", ...), for documentation and the schema test.
 // Keys starting with '_' are comments, accepted anywhere and ignored; JSON comments (// and /* */)

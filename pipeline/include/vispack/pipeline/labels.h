@@ -20,13 +20,14 @@
 //
 // The seg slices lie on the observed (drifted) grid of their colour slice. They are resampled
 // onto the output grid with that slice's registration transform (work/register/transforms.json,
-// stage.h) by NEAREST neighbour only: label(q) = seg(round(p(q))), so two IDs are never blended.
+// transforms.h) by NEAREST neighbour only: label(q) = seg(round(p(q))), so two IDs are never blended.
 // Output: work/labels/labels_NNNN.png (16-bit grey IDs) + report.json (counts of exact, nearest
 // and unmatched pixels, first unmatched positions, IDs present, missing seg slices).
 // Seg slices are matched to colour slices by the number in the file name; a colour slice with no
 // seg slice gets an all-zero label slice and is listed in the report under "missing_seg".
 //
-// Thread-safety: ColourMatcher is immutable after construction and may be shared by threads.
+// Thread-safety: ColourMatcher is immutable after construction and may be shared by threads;
+// the other functions here are pure. The stage is in labels_stage.h.
 #pragma once
 
 #include <array>
@@ -38,7 +39,7 @@
 #include <opencv2/core.hpp>
 
 #include "vispack/pipeline/config.h"
-#include "vispack/pipeline/stage.h"
+#include "vispack/pipeline/transforms.h"
 
 namespace vispack::pipeline {
 
@@ -109,14 +110,8 @@ cv::Mat map_ids(const cv::Mat& seg_ids,
                 const std::string& what, LabelStats* stats);
 
 // Resamples a label slice (CV_16UC1, observed grid) onto the output grid of `out_size` by nearest
-// neighbour: out(q) = in(floor(p + 0.5)), p = output_to_observed(t, center) q; outside -> 0.
+// neighbour: out(q) = in(floor(p + 0.5)), p = rigid_matrix(t.rigid, center) q; outside -> 0.
 cv::Mat resample_labels_nearest(const cv::Mat& labels, const SliceTransform& t,
                                 const std::array<double, 2>& center_px, cv::Size out_size);
-
-// The stage: seg slices -> work/labels/labels_NNNN.png. Needs config.seg (throws ConfigError
-// "seg: not configured" otherwise). Depends on config sections "seg" and "rgb" and on
-// transforms.json (identity transforms when registration has not run and register.enabled is
-// false). Throws InputError (unmatched colour in strict mode, seg slice of the wrong size).
-StageResult run_labels_stage(const Config& config, const StageOptions& options);
 
 }  // namespace vispack::pipeline

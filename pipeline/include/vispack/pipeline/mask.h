@@ -1,15 +1,20 @@
-// Body masks (vispack-mask; DESIGN.md sections 1, 2, 7).
+// Body masks (vispack-mask; docs/GOALS.md §1, §2, §6).
 //
 // The mask of output slice k comes from the CT, because colour thresholding alone fails in the
 // translucent blue gel (tissue shows through it, fiducial tubes of another colour sit in it):
-//   1. CT slice (k + ct.slice_offset) in HU: HU > mask.hu_threshold.
+//   1. CT slice (k + ct.slice_offset) in HU: HU > L, the edge level L = mask_edge_level_hu:
+//      mask.hu_threshold, but never above kAirTissueMidpointHu (−500 HU).
 //   2. Detach what merely touches the body (head-holder, table): an opening of radius
 //      kCtDetachPx CT pixels (removes structures thinner than about 2·kCtDetachPx), the largest
 //      connected component, then the threshold restricted to that component grown by
 //      kCtDetachPx + 1 (restores the body's own edge; a holder separated from the body by more
 //      than that, touching it only through thin bridges, stays out); holes filled (lungs).
-//   3. Resampled onto the output grid (the registered colour grid) through ct_to_rgb from
-//      transforms.json: linear interpolation of the 0/255 mask, threshold at half.
+//      Steps 1–2 are ct_body_mask (outline.h), shared with registration.
+//   3. Carried onto the output grid (the registered colour grid) through ct_to_rgb from
+//      transforms.json with a sub-pixel edge: the output pixel is body where the CT's HU,
+//      linearly interpolated, exceeds L. Step 2 still decides what is body: the edge moves only
+//      between a CT pixel centre of its body and one outside it (one warp of a levels image that
+//      holds the HU, clamped to its side of L, along the edge, and the band of step 4).
 //   4. With mask.refine_gel: in a band 12 output pixels deep (at least one CT pixel) along the
 //      edge of the carried CT mask, pixels of the registered colour slice that are gel
 //      coloured (remove_edge_gel: closer than mask.gel_distance to the gel colour, or less
@@ -22,7 +27,23 @@
 // Without CT (no "ct" in the config, or a slice beyond the CT stack) the mask is colour-only:
 // distance to the gel > gel_distance, then step 5.
 //
-// Masks are CV_8UC1 with values 0 / 255. All functions are pure and thread-safe.
+// Where the edge was lost before (issue #11): a CT edge is a partial-volume ramp (pixel
+// size, PSF, and along z the slab over which a tapering outline changes), and the old mask took
+// it at −400 HU — above the half-covered level, so inside the body, by ~0.25 px on the widest
+// sections and by several pixels near the top of a head, where the slab smears the outline and
+// a small cross-section's peak HU stays below −400 (no mask at all). The binary CT mask was then
+// resampled, which quantises the edge to CT pixels (±1 output px at 2× coarser CT). The gel
+// refinement only removes pixels, so it could not restore either loss. Now the CT edge lies at
+// the half-covered level with sub-pixel placement (steps 1, 3): it errs outward, if at all, where
+// the CT cannot place it (a smeared slab), and step 4 trims that on the colour edge. Measured on
+// analytic head-cap stacks with a CT 2× coarser (tests/pipeline/test_mask_edge.cpp): mean edge
+// offset −0.26 … −5 px → +0.02 … +0.12 px, IoU ≥ 0.977 down to 500-px cross-sections. The
+// opening (step 5) costs nothing measurable (≤ 0.001 IoU for radius 0…2). Without refinement
+// (mask.refine_gel false, black slices) the CT alone sets the edge: within 0.05 px where the
+// outline is steady along z, up to ~1–2 px outside on the smeared small sections of a head's top.
+//
+// Masks are CV_8UC1 with values 0 / 255. All functions here are pure and thread-safe (the
+// stage, which sets OpenCV's process-wide thread count, is in mask_stage.h).
 #pragma once
 
 #include <optional>
@@ -30,29 +51,18 @@
 #include <opencv2/core.hpp>
 
 #include "vispack/pipeline/config.h"
-#include "vispack/pipeline/stage.h"
+#include "vispack/pipeline/outline.h"
+#include "vispack/pipeline/transforms.h"
 
 namespace vispack::pipeline {
 
-// Opening radius (CT pixels) that cuts a head-holder or table from the body in the CT.
-inline constexpr int kCtDetachPx = 2;
+// Half way between air (−1000 HU) and soft tissue (about 0 HU: fat −100, skin and muscle +40):
+// where a CT pixel is half covered by the body.
+inline constexpr double kAirTissueMidpointHu = -500.0;
+// The HU level at which the mask's edge is placed: mask.hu_threshold, but never above
+// kAirTissueMidpointHu (a higher level puts the edge inside the partial-volume band).
+double mask_edge_level_hu(double hu_threshold);
 
-// Largest 8-connected component of a 0/255 mask (empty mask → empty mask).
-cv::Mat largest_component(const cv::Mat& mask);
-// Fills holes: background not 4-connected to the image border becomes 255.
-cv::Mat fill_holes(const cv::Mat& mask);
-// Opening with a disc of `radius` pixels (radius 0: unchanged).
-cv::Mat open_disc(const cv::Mat& mask, int radius);
-
-// Steps 1–2 at CT resolution. `ct_hu`: CV_32F (or CV_16S) HU.
-cv::Mat ct_body_mask(const cv::Mat& ct_hu, double hu_threshold);
-
-// Median colour (RGB) of a 4-pixel frame along the border of an RGB CV_8UC3 slice.
-cv::Vec3f estimate_gel_colour(const cv::Mat& rgb);
-// 0/255 where the RGB colour is farther than `distance` from `gel`.
-cv::Mat non_gel(const cv::Mat& rgb, const cv::Vec3f& gel, double distance);
-// Colour-only body: non_gel, opening, largest component, holes filled.
-cv::Mat colour_body_mask(const cv::Mat& rgb, const cv::Vec3f& gel, double distance, int opening_px);
 // Step 4: removes from `mask` the gel-coloured pixels connected to its outside. A pixel is
 // gel-coloured when its RGB distance to `gel` is below `distance` or below half the median
 // distance of the mask's clearly non-gel pixels (an edge pixel less than half covered by
@@ -65,10 +75,8 @@ cv::Mat remove_edge_gel(const cv::Mat& mask, const cv::Mat& rgb, const cv::Vec3f
                         cv::Rect* removed = nullptr);
 
 // CT (CV_32F HU) resampled onto an output grid of `size`; `out_to_ct` maps output pixels to CT
-// pixels (stage.h output_to_ct). Linear; outside the CT is −1024 HU (air).
+// pixels (transforms.h output_to_ct). Linear; outside the CT is −1024 HU (air).
 cv::Mat resample_ct(const cv::Mat& ct_hu, const cv::Matx23d& out_to_ct, cv::Size size);
-// A 0/255 mask resampled likewise (linear, threshold at 128).
-cv::Mat resample_mask(const cv::Mat& mask, const cv::Matx23d& out_to_ct, cv::Size size);
 // HU → CV_16U with value HU + 32768, clamped (the work/mask/ct_NNNN.png encoding).
 cv::Mat encode_hu16(const cv::Mat& hu);
 
@@ -80,17 +88,10 @@ cv::Mat draw_mask_overlay(const cv::Mat& rgb, const cv::Mat& mask);
 // unused. `gel` overrides the estimate when set. Throws InputError on an unsupported image.
 struct MaskSlice {
   cv::Mat mask;           // 0/255 on the output grid
-  cv::Mat ct_hu;          // CV_32F HU on the output grid (empty in colour-only mode)
   cv::Vec3f gel;          // the gel colour used
   double coverage = 0.0;  // fraction of mask pixels
 };
 MaskSlice compute_mask(const cv::Mat& rgb, const cv::Mat* ct_hu, const cv::Matx23d& out_to_ct,
                        const MaskOptions& options);
-
-// vispack-mask: for every output slice writes <work>/mask/mask_NNNN.png, overlay_NNNN.png,
-// ct_NNNN.png (when CT is configured) and report.json (per-slice coverage, time, throughput).
-// Reads <work>/register/transforms.json and the registered slices (run vispack-register first);
-// per-slice work, so --slices shards freely.
-StageResult run_mask_stage(const Config& config, const StageOptions& options);
 
 }  // namespace vispack::pipeline

@@ -22,7 +22,7 @@
 #pragma once
 
 #include "vispack/pipeline/config.h"
-#include "vispack/pipeline/stage.h"
+#include "vispack/pipeline/stage_run.h"
 
 namespace vispack::pipeline {
 

@@ -12,7 +12,7 @@
 #include <vector>
 
 #include "vispack/pipeline/config.h"
-#include "vispack/pipeline/stage.h"
+#include "vispack/pipeline/stage_run.h"
 
 namespace vispack::pipeline {
 

@@ -15,7 +15,7 @@
 #pragma once
 
 #include "vispack/pipeline/config.h"
-#include "vispack/pipeline/stage.h"
+#include "vispack/pipeline/stage_run.h"
 
 namespace vispack::pipeline {
 

@@ -2,5 +2,5 @@
 #pragma once
 
 namespace vispack {
-const char* version_string();  // "0.1.0"
+const char* version_string();  // project(VERSION) of the top-level CMakeLists.txt, e.g. "0.1.0"
 }

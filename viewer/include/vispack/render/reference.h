@@ -15,8 +15,10 @@
 //   labels : emission = table colour, opacity = table alpha·opacity (·dim_factor when another
 //            label is highlighted); ID 0 is transparent
 //   mip    : ramp(window01(max HU along the ray));  average: ramp(window01(mean HU))
-//   iso    : first crossing of iso_hu (linear refinement between the two samples around it),
-//            Phong-shaded with central-difference gradients (shade_iso)
+//   iso    : first crossing of iso_hu, refined by bisection between the two samples around it
+//            (refine_iso), Phong-shaded with central-difference gradients (shade_iso)
+//   tf2d   : emission and opacity from the 2-D transfer function at (HU, |gradient|)
+//   labels : with LabelShading other than flat, the colour follows label_intensity()
 //   mpr    : the plane through mpr_target + mpr_offset_mm·forward, normal = forward: the
 //            premultiplied colour over the background (or the windowed CT without rgba)
 // Result: RGB already composited over the background; alpha = accumulated opacity (1 where a
@@ -56,6 +58,15 @@ class VolumeSampler {
   const VolumeData& data_;
   std::vector<std::uint8_t> premultiplied_;
 };
+
+// Intensity t ∈ [0, 1] that modulates a segment's colour in labels mode (transfer.h
+// LabelShading): the windowed CT when the volume has CT, else the colour's luminance.
+double label_intensity(const VolumeSampler& sampler, const RenderParams& params, Vec3 p);
+
+// Isosurface hit between ray parameters ta (value fa < iso) and tb (value fb >= iso):
+// kIsoBisectionSteps bisection steps, then linear interpolation inside the last bracket.
+double refine_iso(const VolumeSampler& sampler, const Ray& ray, double iso, double ta, double fa,
+                  double tb, double fb);
 
 // Emission (straight RGB) and opacity per Δ0 of one sample at world point p, for the
 // compositing modes (colour, ct, labels). Shared by the reference and the tests.

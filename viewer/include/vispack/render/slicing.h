@@ -1,11 +1,11 @@
-// View-aligned slicing geometry: the proxy polygons a slice renderer draws (DESIGN.md §4).
+// View-aligned slicing geometry: the proxy polygons a slice renderer draws (docs/GOALS.md §4).
 //
 // A slice is the intersection of the volume's box with a plane n·x = d (n a unit vector,
 // x and d in world mm). Planes sit on a lattice fixed in world space: d = k·Δ for integer k,
 // so the set of planes depends only on n and Δ, never on where the camera is (slices do not
 // swim under translation).
 //
-// Robustness (every degenerate case of DESIGN.md §4): vertices are classified against the
+// Robustness (every degenerate case of docs/GOALS.md §4): vertices are classified against the
 // plane with a tolerance relative to the box size and |d|; a vertex within it counts as on the
 // plane (no division), an edge is cut only when its endpoints are strictly on opposite sides
 // (the denominator is then at least twice the tolerance, and the parameter is clamped to
@@ -64,6 +64,17 @@ struct SliceLattice {
 };
 SliceLattice slice_lattice(const Box3& box, Vec3 normal, double spacing, double min_d,
                            std::int64_t max_slices = 100000);
+
+// The same lattice for one box of several that tile a volume (the brick-paged renderer): the
+// planes with d in [dmin, dmax) of `box` (half-open: a plane through the box's lowest face or
+// corner belongs to it, one through its highest does not), so that every plane crossing a tiled
+// volume is drawn by exactly one box even when it contains a shared face (views along an axis).
+// `volume_dmin` is the whole volume's dmin along `normal`: a plane exactly there only touches
+// the volume and is dropped, as slice_lattice drops it.
+SliceLattice slice_lattice_tile(const Box3& box, Vec3 normal, double spacing, double min_d,
+                                double volume_dmin, std::int64_t max_slices = 100000);
+// Smallest n·x over the corners of `box` (n normalised), NaN for invalid input.
+double box_dmin(const Box3& box, Vec3 normal);
 
 // Triangle list (3 world points per triangle, a fan over each polygon) of every slice of the
 // lattice, ordered back to front (largest d first) when `back_to_front`, else front to back.

@@ -24,8 +24,9 @@
 
 namespace vispack::render {
 
-enum class Mode { kColour, kCt, kMip, kAverage, kIso, kLabels, kMpr };
-const char* mode_name(Mode m);  // "colour", "ct", "mip", "average", "iso", "labels", "mpr"
+enum class Mode { kColour, kCt, kMip, kAverage, kIso, kLabels, kMpr, kTf2d };
+// "colour", "ct", "mip", "average", "iso", "labels", "mpr", "tf2d"
+const char* mode_name(Mode m);
 // Inverse of mode_name (also accepts "color"); nullopt for an unknown name.
 std::optional<Mode> mode_from_name(const std::string& name);
 
@@ -51,6 +52,47 @@ Rgba sample_ramp(const ColourRamp& ramp, double t);
 constexpr int kLabelTableSize = 65536;
 std::vector<Rgba> make_label_colours(const std::vector<Label>& labels, double opacity);
 
+// Labels mode colouring (seed 004): flat table colour; the table colour modulated by the
+// intensity t (colour·t, "fade each segment towards black"); or a ramp per segment (black at
+// t = 0, the segment colour at t = 0.5, white at t = 1). t = window01(HU) when the volume has CT,
+// else the luminance (0.299, 0.587, 0.114) of the straight colour (0 where alpha is 0).
+enum class LabelShading { kFlat, kModulated, kRamp };
+const char* label_shading_name(LabelShading s);  // "flat", "modulated", "ramp"
+std::optional<LabelShading> label_shading_from_name(const std::string& name);
+// Colour of a segment of table colour `c` at intensity t ∈ [0, 1] (alpha unchanged).
+Rgba shade_label(const Rgba& c, LabelShading shading, double t);
+
+// A 2-D transfer function over (CT value, gradient magnitude) (seed 003): a table of
+// kValues × kGradients RGBA entries (value fastest; alpha = opacity per Δ0), the value axis
+// spanning [value_min, value_max] HU and the gradient axis [0, gradient_max] HU/mm. Entry (i, j)
+// sits at value t = i/(kValues − 1) and gradient u = j/(kGradients − 1); lookups are bilinear
+// and clamp to the edges (as a GL texture read at cell centres). Gradients are central
+// differences with one-voxel offsets (VolumeSampler::hu_gradient).
+struct TransferFunction2D {
+  static constexpr int kValues = 128;
+  static constexpr int kGradients = 64;
+  double value_min = -1000.0, value_max = 2000.0, gradient_max = 400.0;
+  std::vector<Rgba> table = std::vector<Rgba>(std::size_t(kValues) * kGradients);
+  Rgba sample(double hu, double gradient_magnitude) const;
+  // True when some entry a lookup of a value in [hu_lo, hu_hi] (any gradient) may read has
+  // alpha > 0 (empty-space skipping).
+  bool any_opacity(double hu_lo, double hu_hi) const;
+};
+// One editor widget: a box in (value, gradient) space, opacity a tent over the value range
+// (peak at its centre) and flat over the gradient range; the table is the maximum (by alpha)
+// of all widgets.
+struct Tf2dWidget {
+  double value_lo = 200, value_hi = 1400;     // HU
+  double gradient_lo = 0, gradient_hi = 400;  // HU/mm
+  Rgba colour{0.95f, 0.9f, 0.8f, 0.6f};       // alpha = peak opacity per Δ0
+};
+TransferFunction2D make_tf2d(const std::vector<Tf2dWidget>& widgets, double value_min = -1000,
+                             double value_max = 2000, double gradient_max = 400);
+
+// Isosurface refinement: the hit is bracketed by the two samples around the crossing, refined
+// by this many bisection steps, then interpolated linearly inside the last bracket.
+constexpr int kIsoBisectionSteps = 6;
+
 struct RenderParams {
   Mode mode = Mode::kColour;
   double slices_per_voxel = 2.0;  // Δ = voxel_length_along(view dir) / slices_per_voxel
@@ -61,8 +103,10 @@ struct RenderParams {
   ColourRamp ramp = make_ramp("bone");
   double iso_hu = 300.0;  // isosurface threshold
   Rgba iso_colour{0.92f, 0.86f, 0.75f, 1.0f};
-  int highlight_label = -1;         // labels mode: this ID at full opacity, the others dimmed
-  double dim_factor = 0.2;          // opacity factor of the labels that are not highlighted
+  int highlight_label = -1;  // labels mode: this ID at full opacity, the others dimmed
+  double dim_factor = 0.2;   // opacity factor of the labels that are not highlighted
+  LabelShading label_shading = LabelShading::kFlat;
+  TransferFunction2D tf2d = make_tf2d({Tf2dWidget{}});  // tf2d mode
   std::vector<Rgba> label_colours;  // kLabelTableSize entries (make_label_colours)
   Rgba background{0, 0, 0, 1};      // composited behind the volume (alpha ignored)
   bool jitter = false;              // offset samples per pixel by up to ±Δ/2 (hash of pixel)
@@ -72,6 +116,9 @@ struct RenderParams {
   bool clip = false;
   Vec3 clip_normal{1, 0, 0};
   double clip_d = 0.0;
+  // Δ0 of the opacities (mm); <= 0: the smallest spacing of the level rendered. The brick-paged
+  // renderer draws several levels at once and sets it to level 0's (reference_length()).
+  double reference_length_mm = 0.0;
 };
 
 // α' = 1 − (1 − α)^ratio with α clamped to [0, 1] (NaN → 0) and ratio >= 0 (NaN → 1).

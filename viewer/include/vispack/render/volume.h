@@ -49,6 +49,15 @@ struct Region {
   std::int64_t voxels() const { return size[0] * size[1] * size[2]; }
 };
 
+// Statistics of one brick over its valid voxels (the file's brick index, or computed):
+// min/max per component (rgba: r, g, b, a; scalar channels use element 0), and for the labels
+// channel the sorted IDs present. Used for empty-space skipping (brick_tree.h).
+struct BrickStats {
+  std::array<std::int64_t, 4> min{0, 0, 0, 0};
+  std::array<std::int64_t, 4> max{0, 0, 0, 0};
+  std::vector<std::uint32_t> labels;
+};
+
 // Read access to a multi-level volume. Level 0 is the finest; level_count() - 1 the coarsest.
 // Thread-safety: read_region may be called from several threads at once (the loader decodes
 // bricks on worker threads); the other members are const and cheap.
@@ -67,7 +76,21 @@ class VolumeSource {
   // bytes, layout above). Throws std::out_of_range if the region leaves the level or the
   // channel is absent, FormatError (naming the file and brick) if stored data is corrupt.
   virtual void read_region(Channel c, int level, const Region& region, void* out) const = 0;
+  // Statistics of brick `brick` (coordinates in the level's brick grid, brick_grid()) of channel
+  // `c`. The default reads the brick and computes them; PackedSource answers from the index.
+  // Throws std::out_of_range like read_region.
+  virtual BrickStats brick_stats(Channel c, int level,
+                                 const std::array<std::int64_t, 3>& brick) const;
+  // Level-0 slice indices (z) whose colour is lost (black slices listed in the file's metadata,
+  // extra.slices.black). Display only: the viewer samples across them (lost_slices.h).
+  virtual std::vector<std::int64_t> lost_slices() const { return {}; }
 };
+
+// Brick grid of a level: ceil(dims / brick_edge) per axis.
+std::array<std::int64_t, 3> brick_grid(const VolumeSource& source, int level);
+// The voxels of one brick of a level: [b·edge, min((b + 1)·edge, dims)) per axis.
+Region brick_region(const VolumeSource& source, int level,
+                    const std::array<std::int64_t, 3>& brick);
 
 // One level of a volume in memory (straight RGBA, HU, label IDs). Absent channels are empty.
 struct VolumeData {

@@ -6,6 +6,7 @@
 #include <string>
 
 #include "vispack/common/cli.h"
+#include "vispack/render/brick_tree.h"
 #include "vispack/render/camera.h"
 #include "vispack/render/transfer.h"
 
@@ -18,15 +19,26 @@ struct ViewOptions {
   render::RenderParams params;
   render::OrbitParams orbit;   // target is the box centre plus orbit.pan_mm
   double label_opacity = 0.5;  // alpha of every label in the colour table (per Δ0)
-  int level = -1;              // -1: the finest level that fits (choose_level)
+  int level = -1;              // >= 0: draw only this level (bricked), or this whole level
+  bool whole_level = false;    // one texture per channel of one level instead of paged bricks
+  double lod_pixels = 1.0;     // bricks: refine while a voxel covers more pixels than this
   std::int64_t max_gpu_mb = 2048;
   int threads = 0;
   int max_frames = 0;    // interactive: close after this many frames (0: never; smoke tests)
   bool timings = false;  // print first-frame, upload and frame times to stderr
+  // Interactive: commands run in order, one per line ('#' starts a comment):
+  //   azimuth DEG | elevation DEG | zoom F | mode NAME   change the view (not "moving")
+  //   wait                  until the view is complete (every brick it needs is drawn)
+  //   screenshot OUT.png    wait, then write the window's frame (without the panel)
+  // The window closes after the last command. For tests of the window against --screenshot.
+  std::string script;
 };
 
 // Declares and parses every option (throws UsageError naming a bad value). Calls args.done().
 ViewOptions parse_view_options(Args& args);
+
+// The brick plan options the view options ask for (--level, --lod, --max-gpu-mb).
+render::PlanOptions plan_options(const ViewOptions& options, int levels);
 
 // Renders one frame without a display and writes options.screenshot. Returns 0.
 // Throws IoError/FormatError (the file), vispack::Error (no GL context).

@@ -1,0 +1,86 @@
+// The synthetic Visible-Human-style slice folder with ground truth (docs/GOALS.md §5,
+// docs/ARCHITECTURE.md "The phantom folder").
+//
+// A body of nested shapes (skin, fat, muscle, bone, lungs, heart, liver, kidneys, connective
+// tissue) whose cross-sections change with z, in blue translucent gel with (by default) two green
+// fiducial tubes and a gel-filled notch open to the outside. Every slice is rendered from one
+// analytic model (functions of position in mm and slice index), so the truth volumes and the
+// drifted slices agree by construction:
+//   truth(q)    = model(q)                        on the output grid,
+//   observed(p) = gain_k · model(q(p)) + noise    with p = c + R(θ_k)(q − c) + d_k,
+//   seg(p)      = palette[label(q(p))]            (nearest, no blending; the IDs themselves are
+//                                                  truth/seg_labels.nrrd, on the drifted grid),
+//   ct(u)       = ct_model(q(u)) + noise          with q = c + s·R(φ)(u − c_ct) + e (ct_to_rgb).
+// The output grid is the CT's frame at the colour resolution (COORD "The output frame"): (φ, e)
+// is register.output_frame (identity), s = CT pixel / colour pixel, and every T_k = (θ_k, d_k) is
+// a constant colour-camera offset against the CT plus the drift, so slice 0 is not the identity;
+// truth/transforms.json says "frame": "ct", "reference_slice": null. That file is written by the
+// phantom's own writer, independent of the pipeline's ON PURPOSE (a bug in the pipeline's writer
+// must not hide in the truth); config.json goes through the pipeline's write_config.
+// Units: x, y in output pixels (pixel_mm each), z in slices (slice_mm); angles in degrees.
+// The generator is deterministic: the same options give a byte-identical folder on the same
+// build (own RNG and distributions, no timestamps, per-slice seeds independent of scheduling).
+// Thread-safety: make_phantom may run concurrently on different output folders.
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <string>
+
+namespace vispack::phantom {
+
+// Geometry of a preset (the output grid is the RGB grid).
+struct PhantomPreset {
+  std::string name;
+  int width = 0, height = 0, slices = 0;  // RGB / output grid, voxels
+  double pixel_mm = 0.33;                 // RGB pixel spacing (x and y)
+  double slice_mm = 1.0;                  // slice spacing (RGB, CT and output)
+  int ct_size = 0;                        // CT matrix is ct_size × ct_size
+  double ct_pixel_mm = 0.9;               // CT pixel spacing (larger than pixel_mm)
+  bool defects = false;                   // one black and one duplicated slice by default
+  bool fiducials = true;                  // the two fiducial tubes by default
+  bool varying_anatomy = false;           // anatomy moves, grows, vanishes and tapers along z
+};
+
+// The presets: tiny 96×64×24, small 256×192×64, medium 512×384×160, vhp 2048×1216×16 (the
+// classic body: slow, smooth changes along z, fiducial tubes in every slice); anatomy
+// 256×192×96 and anatomy-vhp 2048×1216×16 (no fiducials, CT 2× coarser, and an anatomy that
+// does not flatter registration: the outline's centre moves steadily by 0.3 × 0.12 of H/2 over
+// the stack, the body tapers to nothing at both ends (size ∝ sin(π t)^0.3), organs wander,
+// grow and vanish, and the texture is drawn afresh for every slice).
+// Throws UsageError naming the preset when it is unknown.
+PhantomPreset phantom_preset(const std::string& name);
+
+struct PhantomOptions {
+  std::string preset = "small";
+  std::uint64_t seed = 1;
+  int slices = 0;                 // 0: the preset's default; otherwise 2..100000
+  bool rgb_raw = false;           // planar 8-bit header-less .raw RGB (NLM style) instead of PNG
+  bool seg_jpeg = false;          // JPEG (quality 90) segmentation instead of exact PNG
+  std::optional<bool> defects;    // black + duplicated slice; nullopt = the preset's default
+  std::optional<bool> fiducials;  // the two fiducial tubes; nullopt = the preset's default
+  bool drift = true;              // false: the random walk is exactly zero (camera offset stays)
+  bool jump = true;               // false: no block jump
+  double ct_scale = 0;            // CT pixel / colour pixel; 0 = the preset's (0.25..16)
+  int threads = 0;                // 0 = all cores (parallel over slices; output independent of it)
+  bool quiet = false;             // no progress lines on stderr
+};
+
+struct PhantomSummary {
+  int width = 0, height = 0, slices = 0;
+  int ct_size = 0;
+  int jump_slice = -1;       // index of the slice where the block jump happens
+  int black_slice = -1;      // -1 when defects are off
+  int duplicate_slice = -1;  // an exact copy of slice duplicate_slice − 1; -1 when off
+  double seconds = 0.0;      // wall time of the generation
+};
+
+// Writes the phantom folder under `out_dir` (created if missing): rgb/, ct/, seg/, palette.json,
+// config.json and truth/ as docs/ARCHITECTURE.md describes. Every file is written atomically;
+// files of an earlier run in rgb/, ct/ and seg/ that match the phantom's own name patterns but
+// are not part of this run are removed, so the folder always holds exactly one phantom.
+// Throws UsageError for bad options (unknown preset, slice count out of range, defects with
+// fewer than 6 slices), IoError when a file cannot be written.
+PhantomSummary make_phantom(const std::string& out_dir, const PhantomOptions& options);
+
+}  // namespace vispack::phantom

@@ -1,0 +1,482 @@
+#include "vispack/phantom/phantom.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <mutex>
+#include <regex>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+
+#include "phantom_model.h"
+#include "truth_json.h"
+#include "vispack/common/atomic_file.h"
+#include "vispack/common/error.h"
+#include "vispack/common/math_constants.h"
+#include "vispack/common/nrrd.h"
+#include "vispack/common/parallel.h"
+#include "vispack/common/progress.h"
+#include "vispack/pipeline/config.h"
+#include "vispack/pipeline/slice_io.h"
+
+namespace vispack::phantom {
+namespace {
+
+namespace fs = std::filesystem;
+using namespace detail;
+using pipeline::RawLayout;
+using pipeline::write_image;
+using pipeline::write_raw_slice;
+using ojson = nlohmann::ordered_json;
+
+constexpr double kNoiseSigma = 3.0;  // RGB sensor noise, 8-bit levels
+constexpr double kCtNoiseHu = 6.0;   // CT noise, HU
+constexpr double kGainRange = 0.05;  // brightness gain 1 ± 5 %
+constexpr double kDriftPx = 0.3;     // random-walk step σ, pixels
+constexpr double kDriftDeg = 0.05;   // random-walk step σ, degrees
+
+struct SliceTruth {
+  double dx = 0, dy = 0, rot = 0, gain = 1;
+  bool jump = false, black = false;
+  int duplicate_of = -1;
+  int source = 0;  // model slice whose picture the observed file shows (k, or k−1 for a duplicate)
+};
+
+struct Plan {
+  PhantomPreset preset;
+  int slices = 0;
+  bool defects = false;
+  int jump = -1, black = -1, duplicate = -1;
+  std::vector<SliceTruth> truth;
+  Anatomy anatomy;
+  // CT → output grid: the output grid IS the CT frame at the colour resolution (COORD "The output
+  // frame"), so ct_to_rgb is the pixel-size ratio turned and shifted by output_frame (identity).
+  double ct_scale = 1, ct_rot = 0, ct_dx = 0, ct_dy = 0;
+  pipeline::Rigid output_frame;                // register.output_frame of the config written
+  double cam_rot = 0, cam_dx = 0, cam_dy = 0;  // the colour camera's constant offset
+  int digits = 4;
+};
+
+// Shift limits that keep the body inside the frame under any recorded rotation.
+struct Limits {
+  double x, y, rot;
+};
+Limits limits_for(const PhantomPreset& p, const Anatomy& anatomy, double max_rot_deg) {
+  const double half = p.height * 0.5;
+  const double a = Model::body_max_a(anatomy), b = Model::body_max_b(anatomy);
+  const double reach = std::hypot(a, b) * half;  // farthest body point from the centre, px
+  const double rot_px = max_rot_deg * kPi / 180.0 * reach;
+  return {p.width * 0.5 - a * half - 3 - rot_px, half - b * half - 2 - rot_px, max_rot_deg};
+}
+
+double reflect(double v, double limit) {
+  for (int i = 0; i < 4 && std::fabs(v) > limit; ++i)
+    v = v > 0 ? 2 * limit - v : -2 * limit - v;
+  return std::clamp(v, -limit, limit);
+}
+
+Plan make_plan(const PhantomOptions& options) {
+  Plan plan;
+  plan.preset = phantom_preset(options.preset);
+  if (options.ct_scale < 0 || (options.ct_scale > 0 && options.ct_scale < 0.25) ||
+      options.ct_scale > 16)
+    throw UsageError(cat("--ct-scale ", options.ct_scale, ": must be between 0.25 and 16"));
+  if (options.ct_scale > 0) {
+    // CT pixels ct_scale× the colour pixel, a field of view 10 % larger than the colour frame.
+    PhantomPreset& q = plan.preset;
+    q.ct_pixel_mm = q.pixel_mm * options.ct_scale;
+    q.ct_size = int(std::ceil(1.1 * std::max(q.width, q.height) * q.pixel_mm / q.ct_pixel_mm));
+  }
+  const PhantomPreset& p = plan.preset;
+  plan.anatomy.fiducials = options.fiducials.value_or(p.fiducials);
+  if (p.varying_anatomy) {
+    plan.anatomy.varying = true;
+    plan.anatomy.body_scale = 0.8;
+    plan.anatomy.shift_x = 0.3;
+    plan.anatomy.shift_y = 0.12;
+    plan.anatomy.taper = true;
+  }
+  plan.slices = options.slices > 0 ? options.slices : p.slices;
+  if (options.slices < 0 || plan.slices < 2 || plan.slices > 100000) {
+    throw UsageError(cat("--slices ", options.slices, ": must be between 2 and 100000"));
+  }
+  const int n = plan.slices;
+  // The preset's default quietly drops the defects for very short stacks; asking for them fails.
+  plan.defects = options.defects.value_or(p.defects && n >= 6);
+  if (plan.defects && n < 6) {
+    throw UsageError(cat("black/duplicate slices (--defects) need at least 6 slices, got ", n));
+  }
+  // Bytes per voxel of the truth volumes: rgb 3 + ct 2 + mask 1 + labels 2 + seg_labels 2.
+  const double volume_bytes = double(p.width) * p.height * n * 10.0;
+  if (volume_bytes > 12e9) {
+    throw UsageError(cat("--slices ", n, ": the truth volumes would need ",
+                         std::llround(volume_bytes / 1e9), " GB of memory; use fewer slices"));
+  }
+  plan.digits = std::max(4, int(std::to_string(n - 1).size()));
+  plan.jump = options.jump ? n / 2 : -1;
+  if (plan.defects) {
+    plan.black = std::max(1, n / 4);
+    plan.duplicate = (3 * n) / 4;
+    if (plan.duplicate == plan.jump) ++plan.duplicate;
+    if (plan.duplicate - 1 == plan.black) ++plan.duplicate;
+    if (plan.duplicate >= n) throw UsageError("too few slices for the defects");
+  }
+
+  const bool tiny = p.height < 128;
+  const double jump_lo = tiny ? 7.0 : 10.0, jump_hi = tiny ? 9.0 : 15.0;
+  const double rot_lo = tiny ? 1.5 : 2.0, rot_hi = tiny ? 2.5 : 4.0;
+  const Limits lim = limits_for(p, plan.anatomy, tiny ? 3.5 : 6.0);
+
+  // The colour camera's constant offset against the CT: about 0.05·H px (3..12) and 1..2°
+  // (tiny: 0.6..1.2°), never more than 40 % of the room the drift has.
+  {
+    Random cam(options.seed * 0xd1b54a32d192ed03ull + 29);
+    const double mag =
+        std::min(std::clamp(0.05 * p.height, 3.0, 12.0), 0.4 * std::min(lim.x, lim.y));
+    const double angle = cam.uniform(0, 2 * kPi);
+    plan.cam_rot = cam.uniform(1.0, 2.0) * (tiny ? 0.6 : 1.0) * (cam.uniform() < 0.5 ? -1 : 1);
+    plan.cam_dx = mag * std::cos(angle);
+    plan.cam_dy = mag * std::sin(angle);
+  }
+
+  Random rng(options.seed * 0x9e3779b97f4a7c15ull + 17);
+  plan.truth.resize(n);
+  for (int k = 0; k < n; ++k) {
+    SliceTruth& s = plan.truth[k];
+    s.source = k;
+    s.gain = 1.0 + rng.uniform(-kGainRange, kGainRange);
+    const double drift = options.drift ? 1.0 : 0.0;  // the draws happen either way
+    const double step_x = drift * rng.normal(kDriftPx), step_y = drift * rng.normal(kDriftPx);
+    const double step_r = drift * rng.normal(kDriftDeg);
+    const double jump_m = rng.uniform(jump_lo, jump_hi), jump_a = rng.uniform(0, 2 * kPi);
+    const double jump_r = rng.uniform(rot_lo, rot_hi) * (rng.uniform() < 0.5 ? -1 : 1);
+    if (k == 0) {
+      s.dx = plan.cam_dx, s.dy = plan.cam_dy, s.rot = plan.cam_rot;  // no reference slice
+      continue;
+    }
+    const SliceTruth& prev = plan.truth[k - 1];
+    if (k == plan.duplicate) {
+      // An exact copy of the previous file: same picture, same transform.
+      s = prev;
+      s.jump = false;
+      s.black = false;
+      s.duplicate_of = k - 1;
+      s.source = prev.source;
+      continue;
+    }
+    s.dx = reflect(prev.dx + step_x, lim.x);
+    s.dy = reflect(prev.dy + step_y, lim.y);
+    s.rot = reflect(prev.rot + step_r, lim.rot);
+    if (k == plan.jump) {
+      // Try directions around the drawn one until the whole jump fits inside the limits.
+      bool placed = false;
+      for (int attempt = 0; attempt < 8 && !placed; ++attempt) {
+        const double a = jump_a + attempt * kPi / 4;
+        const double jx = prev.dx + jump_m * std::cos(a), jy = prev.dy + jump_m * std::sin(a);
+        if (std::fabs(jx) <= lim.x && std::fabs(jy) <= lim.y) {
+          s.dx = jx;
+          s.dy = jy;
+          placed = true;
+        }
+      }
+      if (!placed) {
+        throw Error(cat("phantom: no room for a block jump of ", jump_m, " px in a ", p.width, "x",
+                        p.height, " frame"));
+      }
+      s.rot = std::clamp(prev.rot + jump_r, -lim.rot, lim.rot);
+      if (std::fabs(s.rot - prev.rot) < rot_lo * 0.99) s.rot = prev.rot - jump_r;
+      s.jump = true;
+    }
+    s.black = k == plan.black;
+  }
+
+  // CT → output grid: defined, not drawn (output_frame identity by default).
+  plan.ct_scale = p.ct_pixel_mm / p.pixel_mm;
+  plan.ct_rot = plan.output_frame.rotation_deg;
+  plan.ct_dx = plan.output_frame.dx_px;
+  plan.ct_dy = plan.output_frame.dy_px;
+  return plan;
+}
+
+std::string numbered(const std::string& stem, int number, int digits, const std::string& ext) {
+  char buffer[32];
+  std::snprintf(buffer, sizeof buffer, "%0*d", digits, number);
+  return stem + "_" + buffer + ext;
+}
+
+std::uint8_t to_u8(double v) {
+  return static_cast<std::uint8_t>(std::clamp(std::lround(v), 0L, 255L));
+}
+
+// Removes files of an earlier run (same naming scheme) that this run did not write.
+void remove_stale(const std::string& dir, const std::regex& pattern,
+                  const std::vector<std::string>& keep) {
+  std::error_code ec;
+  for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string name = it->path().filename().string();
+    if (!std::regex_match(name, pattern)) continue;
+    if (std::find(keep.begin(), keep.end(), name) != keep.end()) continue;
+    fs::remove(it->path(), ec);
+  }
+}
+
+}  // namespace
+
+PhantomPreset phantom_preset(const std::string& name) {
+  PhantomPreset p;
+  p.name = name;
+  if (name == "tiny") {
+    p.width = 96, p.height = 64, p.slices = 24, p.pixel_mm = 0.5, p.ct_size = 56,
+    p.ct_pixel_mm = 1.0, p.defects = false;
+  } else if (name == "small") {
+    p.width = 256, p.height = 192, p.slices = 64, p.pixel_mm = 0.33, p.ct_size = 128,
+    p.ct_pixel_mm = 0.9, p.defects = true;
+  } else if (name == "medium") {
+    p.width = 512, p.height = 384, p.slices = 160, p.pixel_mm = 0.33, p.ct_size = 256,
+    p.ct_pixel_mm = 0.9, p.defects = true;
+  } else if (name == "vhp") {
+    p.width = 2048, p.height = 1216, p.slices = 16, p.pixel_mm = 0.33, p.ct_size = 512,
+    p.ct_pixel_mm = 1.4, p.defects = true;
+  } else if (name == "anatomy") {
+    // Does not flatter registration: anatomy that moves, grows and vanishes along z, tapering to
+    // nothing at both ends; no fiducials; fresh texture every slice; CT 2× coarser.
+    p.width = 256, p.height = 192, p.slices = 96, p.pixel_mm = 0.33, p.ct_size = 144,
+    p.ct_pixel_mm = 0.66, p.defects = false, p.fiducials = false, p.varying_anatomy = true;
+  } else if (name == "anatomy-vhp") {
+    p.width = 2048, p.height = 1216, p.slices = 16, p.pixel_mm = 0.33, p.ct_size = 1120,
+    p.ct_pixel_mm = 0.66, p.defects = false, p.fiducials = false, p.varying_anatomy = true;
+  } else {
+    throw UsageError(cat("unknown preset \"", name,
+                         "\" (use tiny, small, medium, vhp, anatomy or anatomy-vhp)"));
+  }
+  p.slice_mm = 1.0;
+  return p;
+}
+
+PhantomSummary make_phantom(const std::string& out_dir, const PhantomOptions& options) {
+  const auto start = std::chrono::steady_clock::now();
+  const Plan plan = make_plan(options);
+  const PhantomPreset& p = plan.preset;
+  const int W = p.width, H = p.height, N = plan.slices, C = p.ct_size;
+  const Model model(W, H, N, options.seed, plan.anatomy);
+  const GaussianTable gaussian;
+
+  const std::string rgb_dir = out_dir + "/rgb", ct_dir = out_dir + "/ct",
+                    seg_dir = out_dir + "/seg";
+  const std::string truth_dir = out_dir + "/truth";
+  for (const auto& d : {rgb_dir, ct_dir, seg_dir, truth_dir})
+    make_directories(d);
+
+  const std::string rgb_ext = options.rgb_raw ? ".raw" : ".png";
+  const std::string seg_ext = options.seg_jpeg ? ".jpg" : ".png";
+  RawLayout raw;
+  raw.width = W, raw.height = H, raw.channels = 3, raw.planar = true, raw.bits = 8;
+
+  NrrdVolume truth_rgb, truth_ct, truth_mask, truth_labels, truth_seg_labels;
+  const std::array<double, 3> spacing{p.pixel_mm, p.pixel_mm, p.slice_mm};
+  auto init = [&](NrrdVolume& v, NrrdType type, int components) {
+    v.type = type;
+    v.components = components;
+    v.dims = {W, H, N};
+    v.spacing_mm = spacing;
+    v.data.assign(v.byte_size(), 0);
+  };
+  init(truth_rgb, NrrdType::kUint8, 3);
+  init(truth_ct, NrrdType::kInt16, 1);
+  init(truth_mask, NrrdType::kUint8, 1);
+  init(truth_labels, NrrdType::kUint16, 1);
+  init(truth_seg_labels, NrrdType::kUint16, 1);
+
+  const double cx = (W - 1) * 0.5, cy = (H - 1) * 0.5, cct = (C - 1) * 0.5;
+  Progress progress("vispack-phantom", N, "slices", options.quiet);
+  parallel_for(N, resolve_threads(options.threads), [&](std::int64_t kk) {
+    const int k = static_cast<int>(kk);
+    const SliceTruth& st = plan.truth[k];
+    const SliceParams params = model.slice(k);
+    Sample sample;
+    // Truth on the output grid: no drift, no noise, gain 1.
+    const std::size_t plane = std::size_t(W) * H;
+    auto* t_rgb = truth_rgb.as<std::uint8_t>() + plane * 3 * k;
+    auto* t_ct = truth_ct.as<std::int16_t>() + plane * k;
+    auto* t_mask = truth_mask.as<std::uint8_t>() + plane * k;
+    auto* t_lab = truth_labels.as<std::uint16_t>() + plane * k;
+    for (int y = 0; y < H; ++y) {
+      for (int x = 0; x < W; ++x) {
+        model.eval(params, x, y, 1.0, true, true, sample);
+        const std::size_t i = std::size_t(y) * W + x;
+        for (int c = 0; c < 3; ++c)
+          t_rgb[i * 3 + c] = to_u8(sample.rgb[c]);
+        t_ct[i] = static_cast<std::int16_t>(std::clamp(std::lround(sample.hu), -1024L, 3071L));
+        t_mask[i] = sample.body ? 1 : 0;
+        t_lab[i] = sample.label;
+      }
+    }
+
+    // Observed RGB and segmentation: the model sampled at q(p) for each observed pixel p,
+    // q = c + R(−θ)(p − c − d) (the inverse of p = c + R(θ)(q − c) + d).
+    cv::Mat rgb(H, W, CV_8UC3, cv::Scalar::all(0));
+    cv::Mat seg(H, W, CV_8UC3, cv::Scalar::all(0));
+    // The IDs the seg slice shows, pixel for pixel on its own (drifted) grid; 0 on a black slice.
+    auto* t_seg = truth_seg_labels.as<std::uint16_t>() + plane * k;
+    if (!st.black) {
+      const SliceParams& src = st.source == k ? params : model.slice(st.source);
+      const double th = st.rot * kPi / 180.0, cs = std::cos(th), sn = std::sin(th);
+      Random noise(mix64(options.seed ^ (0x5851f42d4c957f2dull * std::uint64_t(st.source + 1))));
+      for (int y = 0; y < H; ++y) {
+        auto* row = rgb.ptr<std::uint8_t>(y);
+        auto* srow = seg.ptr<std::uint8_t>(y);
+        for (int x = 0; x < W; ++x) {
+          const double px = x - cx - st.dx, py = y - cy - st.dy;
+          const double qx = cx + cs * px + sn * py, qy = cy - sn * px + cs * py;
+          model.eval(src, qx, qy, 1.0, true, false, sample);
+          float gauss[4];
+          noise.normal4(gaussian, gauss);
+          for (int c = 0; c < 3; ++c) {
+            row[x * 3 + c] = to_u8(sample.rgb[c] * st.gain + kNoiseSigma * gauss[c]);
+          }
+          t_seg[std::size_t(y) * W + x] = sample.label;
+          const auto& colour = label_info(sample.label).palette;
+          for (int c = 0; c < 3; ++c)
+            srow[x * 3 + c] = static_cast<std::uint8_t>(colour[c]);
+        }
+      }
+    }
+    const std::string rgb_path = rgb_dir + "/" + numbered("rgb", k, plan.digits, rgb_ext);
+    if (options.rgb_raw) {
+      write_raw_slice(rgb_path, rgb, raw);
+    } else {
+      write_image(rgb_path, rgb);
+    }
+    write_image(seg_dir + "/" + numbered("seg", k, plan.digits, seg_ext), seg, 90);
+
+    // CT: its own (larger) pixels, no drift, HU + 1024 stored, 16-bit.
+    cv::Mat ct(C, C, CV_16UC1);
+    {
+      const double th = plan.ct_rot * kPi / 180.0, cs = std::cos(th), sn = std::sin(th);
+      const double s = plan.ct_scale;
+      Random noise(mix64(options.seed ^ (0x2545f4914f6cdd1dull * std::uint64_t(k + 1))));
+      for (int v = 0; v < C; ++v) {
+        auto* row = ct.ptr<std::uint16_t>(v);
+        for (int u = 0; u < C; ++u) {
+          const double du = u - cct, dv = v - cct;
+          const double qx = cx + s * (cs * du - sn * dv) + plan.ct_dx;
+          const double qy = cy + s * (sn * du + cs * dv) + plan.ct_dy;
+          model.eval(params, qx, qy, s, false, true, sample);
+          float gauss[4];
+          noise.normal4(gaussian, gauss);
+          const double hu = sample.hu + kCtNoiseHu * gauss[0];
+          row[u] = static_cast<std::uint16_t>(std::clamp(std::lround(hu + 1024.0), 0L, 4095L));
+        }
+      }
+    }
+    write_image(ct_dir + "/" + numbered("ct", k, plan.digits, ".png"), ct);
+    progress.advance();
+  });
+  progress.finish();
+
+  write_nrrd(truth_dir + "/rgb.nrrd", truth_rgb);
+  write_nrrd(truth_dir + "/ct.nrrd", truth_ct);
+  write_nrrd(truth_dir + "/mask.nrrd", truth_mask);
+  write_nrrd(truth_dir + "/labels.nrrd", truth_labels);
+  write_nrrd(truth_dir + "/seg_labels.nrrd", truth_seg_labels);
+
+  // transforms.json (docs/ARCHITECTURE.md "Slice transforms"), by the phantom's own writer, plus
+  // its extras: per-slice "gain", the camera offset, noise levels, preset and seed.
+  {
+    TruthTransforms tt;
+    tt.width = W, tt.height = H, tt.frame = "ct", tt.has_ct = true;
+    tt.ct_scale = plan.ct_scale, tt.ct_rotation_deg = plan.ct_rot;
+    tt.ct_dx_px = plan.ct_dx, tt.ct_dy_px = plan.ct_dy;
+    for (int k = 0; k < N; ++k) {
+      const SliceTruth& st = plan.truth[k];
+      TruthSlice s;
+      s.index = k, s.number = k, s.file = numbered("rgb", k, plan.digits, rgb_ext);
+      s.dx_px = st.dx, s.dy_px = st.dy, s.rotation_deg = st.rot;
+      s.jump = st.jump, s.black = st.black, s.duplicate_of = st.duplicate_of, s.gain = st.gain;
+      tt.slices.push_back(s);
+    }
+    tt.extra["camera_offset"] = {
+        {"rotation_deg", plan.cam_rot}, {"dx_px", plan.cam_dx}, {"dy_px", plan.cam_dy}};
+    tt.extra["noise_sigma"] = kNoiseSigma;
+    tt.extra["ct_noise_hu"] = kCtNoiseHu;
+    tt.extra["preset"] = p.name;
+    tt.extra["seed"] = options.seed;
+    tt.extra["fiducials"] = plan.anatomy.fiducials;
+    tt.extra["drift"] = options.drift;
+    write_truth_transforms(truth_dir + "/transforms.json", tt);
+  }
+
+  ojson palette;
+  palette["labels"] = ojson::array();
+  for (int id = 1; id < kLabelCount; ++id) {
+    const LabelInfo& info = label_info(id);
+    palette["labels"].push_back({{"id", id}, {"name", info.name}, {"colour", info.palette}});
+  }
+  write_file_atomic(out_dir + "/palette.json", palette.dump(2) + "\n");
+
+  // A ready config, written through the pipeline's own config writer (one writer of the
+  // schema); with CT the output frame is defined by the CT (register.output_frame).
+  {
+    const std::string base = fs::absolute(out_dir).lexically_normal().string();
+    pipeline::Config config;
+    config.path = base + "/config.json";
+    config.name = "phantom-" + p.name;
+    config.work_dir = base + "/work";
+    config.output = base + "/out/volume.vpk";
+    config.vdb_output = base + "/out/volume.vdb";
+    config.spacing_mm = {p.pixel_mm, p.pixel_mm, p.slice_mm};
+    config.rgb.dir = base + "/rgb";
+    config.rgb.pattern = "rgb_{n}" + rgb_ext;
+    if (options.rgb_raw) config.rgb.raw = raw;
+    pipeline::CtSource ct;
+    ct.dir = base + "/ct";
+    ct.pattern = "ct_{n}.png";
+    ct.pixel_spacing_mm = {p.ct_pixel_mm, p.ct_pixel_mm};
+    ct.slope = 1.0;
+    ct.intercept = -1024.0;
+    config.ct = ct;
+    pipeline::SegSource seg;
+    seg.dir = base + "/seg";
+    seg.pattern = "seg_{n}" + seg_ext;
+    seg.palette = base + "/palette.json";
+    seg.mode = "colour";
+    seg.tolerance = options.seg_jpeg ? 48 : 24;
+    seg.strict = false;
+    config.seg = seg;
+    config.registration.method = "phase+ecc";
+    config.registration.ecc_scale = 0.5;
+    config.registration.jump_px = 6.0;
+    config.registration.output_frame = plan.output_frame;
+    config.mask.hu_threshold = -400;
+    config.mask.opening_px = 1;
+    config.mask.refine_gel = true;
+    pipeline::write_config(out_dir + "/config.json", config);
+  }
+
+  // Leftovers of an earlier run with another preset, slice count or format.
+  std::vector<std::string> keep_rgb, keep_seg, keep_ct;
+  for (int k = 0; k < N; ++k) {
+    keep_rgb.push_back(numbered("rgb", k, plan.digits, rgb_ext));
+    keep_seg.push_back(numbered("seg", k, plan.digits, seg_ext));
+    keep_ct.push_back(numbered("ct", k, plan.digits, ".png"));
+  }
+  remove_stale(rgb_dir, std::regex("rgb_[0-9]+\\.(png|raw)"), keep_rgb);
+  remove_stale(seg_dir, std::regex("seg_[0-9]+\\.(png|jpg)"), keep_seg);
+  remove_stale(ct_dir, std::regex("ct_[0-9]+\\.png"), keep_ct);
+
+  PhantomSummary summary;
+  summary.width = W;
+  summary.height = H;
+  summary.slices = N;
+  summary.ct_size = C;
+  summary.jump_slice = plan.jump;
+  summary.black_slice = plan.black;
+  summary.duplicate_slice = plan.duplicate;
+  summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  return summary;
+}
+
+}  // namespace vispack::phantom

@@ -1,0 +1,117 @@
+// vispack-phantom: writes a synthetic slice folder with ground truth (docs/GOALS.md §5):
+// an analytic preset (phantom.h) or colour slices synthesised from a real CT (from_ct.h).
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <iostream>
+
+#include "vispack/common/cli.h"
+#include "vispack/common/error.h"
+#include "vispack/phantom/from_ct.h"
+#include "vispack/phantom/phantom.h"
+
+int main(int argc, char** argv) {
+  return vispack::run_main("vispack-phantom", argc, argv, [](vispack::Args& args) {
+    args.describe(
+        "--out DIR [--preset NAME | --from-ct CT [--first K] [--margin PX]] [--ct-scale F] [--seed "
+        "N] [--slices N] "
+        "[--rgb-raw] [--seg-jpeg] [--defects|--no-defects] [--fiducials|--no-fiducials] "
+        "[--no-drift] [--no-jump] [--threads N] [--quiet]",
+        "Writes a synthetic Visible-Human-style slice folder (rgb/, ct/, seg/, palette.json,\n"
+        "config.json) with ground truth in truth/ (NRRD volumes and transforms.json).\n"
+        "--from-ct synthesises the colour slices from a real CT (a .nrrd, a config.json, or a\n"
+        "sample folder such as data/samples/head-ct) instead of the analytic body.\n"
+        "The same options give a byte-identical folder.");
+    const auto out = args.option("--out", "DIR", "output folder (created if missing)");
+    const auto preset = args.option(
+        "--preset", "NAME", "tiny | small | medium | vhp | anatomy | anatomy-vhp (default small)");
+    const auto from_ct = args.option("--from-ct", "CT", "synthesise from this real CT volume");
+    const auto first =
+        args.option_int("--first", "K", "--from-ct: first CT slice (default: centred)");
+    const auto ct_scale = args.option_double(
+        "--ct-scale", "F",
+        "CT pixel / colour pixel (--from-ct: an integer, default 2; presets: the preset's)");
+    const auto margin =
+        args.option_int("--margin", "PX", "--from-ct: gel around the CT's field of view, px");
+    const auto seed = args.option_int("--seed", "N", "random seed (default 1)");
+    const auto slices = args.option_int("--slices", "N",
+                                        "number of slices (default: the preset's / all CT slices)");
+    vispack::phantom::PhantomOptions options;
+    options.rgb_raw =
+        args.flag("--rgb-raw", "colour slices as header-less planar .raw (NLM style)");
+    options.seg_jpeg = args.flag("--seg-jpeg", "segmentation as JPEG (quality 90: noisy colours)");
+    const bool defects = args.flag("--defects", "add one black and one duplicated slice");
+    const bool no_defects = args.flag("--no-defects", "no black or duplicated slice");
+    const bool fiducials = args.flag("--fiducials", "draw the two fiducial tubes");
+    const bool no_fiducials = args.flag("--no-fiducials", "no fiducial tubes");
+    const bool no_drift = args.flag("--no-drift", "true drift exactly zero (camera offset stays)");
+    const bool no_jump = args.flag("--no-jump", "no block jump");
+    const auto threads = args.option_int("--threads", "N", "worker threads (default: all cores)");
+    const bool quiet = args.flag("--quiet", "no progress output");
+    args.done();
+    if (!out || out->empty()) throw vispack::UsageError("--out DIR is required");
+    if (defects && no_defects) throw vispack::UsageError("--defects and --no-defects conflict");
+    if (fiducials && no_fiducials)
+      throw vispack::UsageError("--fiducials and --no-fiducials conflict");
+    if (seed && *seed < 0) throw vispack::UsageError("--seed must not be negative");
+    if (threads && *threads < 0) throw vispack::UsageError("--threads must not be negative");
+    if (slices && *slices <= 0) throw vispack::UsageError("--slices must be at least 2");
+    const std::uint64_t seed_value = seed ? static_cast<std::uint64_t>(*seed) : 1;
+    const int slice_count =
+        slices ? static_cast<int>(std::clamp<long long>(*slices, -1, 1 << 30)) : 0;
+    const int thread_count = threads ? static_cast<int>(*threads) : 0;
+
+    if (from_ct) {
+      if (preset) throw vispack::UsageError("--preset and --from-ct conflict");
+      if (options.rgb_raw || options.seg_jpeg || defects || fiducials)
+        throw vispack::UsageError(
+            "--rgb-raw, --seg-jpeg, --defects and --fiducials apply to the presets only");
+      vispack::phantom::FromCtOptions o;
+      o.seed = seed_value;
+      o.slices = slice_count;
+      o.first = first ? static_cast<int>(std::clamp<long long>(*first, -1, 1 << 30)) : -1;
+      if (first && *first < 0) throw vispack::UsageError("--first must not be negative");
+      if (ct_scale && *ct_scale != std::floor(*ct_scale))
+        throw vispack::UsageError("--ct-scale must be an integer with --from-ct");
+      o.scale = ct_scale ? static_cast<int>(std::clamp(*ct_scale, 0.0, 100.0)) : 2;
+      if (margin && *margin < 0) throw vispack::UsageError("--margin must not be negative");
+      if (margin) o.margin_px = static_cast<int>(std::min<long long>(*margin, 1 << 20));
+      o.drift = !no_drift;
+      o.jump = !no_jump;
+      o.threads = thread_count;
+      o.quiet = quiet;
+      const auto ct = vispack::phantom::read_ct_volume(*from_ct);
+      const auto s = vispack::phantom::make_phantom_from_ct(*out, ct, o);
+      std::printf(
+          "%s: %dx%dx%d RGB from CT slices %d..%d (%dx%d), jump at slice %d, body %.1f %% "
+          "(%.2f s)\n",
+          out->c_str(), s.width, s.height, s.slices, s.first_ct_slice,
+          s.first_ct_slice + s.slices - 1, s.ct_width, s.ct_height, s.jump_slice,
+          100.0 * s.body_fraction, s.seconds);
+      return 0;
+    }
+    if (first || margin) throw vispack::UsageError("--first and --margin need --from-ct");
+    if (ct_scale) options.ct_scale = *ct_scale;
+    options.preset = preset.value_or("small");
+    options.seed = seed_value;
+    options.slices = slice_count;
+    if (defects) options.defects = true;
+    if (no_defects) options.defects = false;
+    if (fiducials) options.fiducials = true;
+    if (no_fiducials) options.fiducials = false;
+    if (no_drift) options.drift = false;
+    if (no_jump) options.jump = false;
+    options.threads = thread_count;
+    options.quiet = quiet;
+    const auto summary = vispack::phantom::make_phantom(*out, options);
+    std::printf("%s: %dx%dx%d RGB, %dx%d CT, jump at slice %d", out->c_str(), summary.width,
+                summary.height, summary.slices, summary.ct_size, summary.ct_size,
+                summary.jump_slice);
+    if (summary.black_slice >= 0) {
+      std::printf(", black slice %d, duplicate slice %d", summary.black_slice,
+                  summary.duplicate_slice);
+    }
+    std::printf(" (%.2f s)\n", summary.seconds);
+    return 0;
+  });
+}

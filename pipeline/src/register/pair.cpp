@@ -1,0 +1,397 @@
+// Pair estimates (phase correlation + ECC) and the per-slice pair records. See register/pair.h.
+#include "vispack/pipeline/register/pair.h"
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <optional>
+
+#include <opencv2/imgproc.hpp>
+#include <opencv2/video/tracking.hpp>
+
+#include "vispack/common/error.h"
+#include "vispack/common/hash.h"
+#include "vispack/common/math_constants.h"
+#include "vispack/common/parallel.h"
+
+namespace vispack::pipeline {
+namespace {
+
+constexpr double kAngleRange = 10.0;  // coarse rotation search: −10°..10°
+constexpr double kAngleStep = 2.5;
+constexpr int kLookBack = 4;  // edges reach back over at most 4 slices
+// Fine ECC stops when the correlation improves by less than this per iteration: from the
+// coarse estimate (within ~0.1 coarse px) it converges in a few iterations.
+constexpr double kFineEps = 1e-5;
+
+// Rotates `image` about its centre so that out(x) = image(c + R(φ)(x − c)).
+cv::Mat rotate_about_centre(const cv::Mat& image, double angle_deg) {
+  if (angle_deg == 0.0) return image;
+  cv::Mat out;
+  cv::warpAffine(image, out, cv::Mat(rigid_matrix({angle_deg, 0, 0}, image_centre(image.size()))),
+                 image.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_REPLICATE);
+  return out;
+}
+
+// ECC at one level; `m` (full-resolution j→k matrix) is updated in place. Returns rho or throws.
+double ecc_level(const cv::Mat& from, const cv::Mat& to, double scale, cv::Matx23d& m,
+                 int iterations, double eps) {
+  cv::Matx23d ms = scale_affine(m, scale);
+  cv::Mat warp(2, 3, CV_32F);
+  for (int r = 0; r < 2; ++r)
+    for (int c = 0; c < 3; ++c)
+      warp.at<float>(r, c) = float(ms(r, c));
+  const double rho = cv::findTransformECC(
+      from, to, warp, cv::MOTION_EUCLIDEAN,
+      cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, iterations, eps),
+      cv::noArray(), 1);  // the frames are pre-blurred (prepare_frame)
+  for (int r = 0; r < 2; ++r)
+    for (int c = 0; c < 3; ++c)
+      ms(r, c) = warp.at<float>(r, c);
+  m = unscale_affine(ms, scale);
+  return rho;
+}
+
+// Step 3 of estimate_pair: ECC at ecc_scale from `m` (full-resolution matrix of `start`).
+// On success sets est.relative, est.quality (the correlation) and est.ecc_ok; a refinement that
+// moves more than 4 coarse pixels from `start` has diverged and counts as a failure.
+bool refine_fine(const RegisterFrame& from, const RegisterFrame& to, const RegisterOptions& options,
+                 const Rigid& start, cv::Matx23d m, PairEstimate& est) {
+  const cv::Point2d centre = image_centre(from.full_size);
+  try {
+    const double rho = ecc_level(from.fine, to.fine, from.fine_scale, m,
+                                 std::max(1, options.ecc_iterations), kFineEps);
+    const Rigid refined = rigid_from_matrix(m, centre);
+    const Rigid diff{refined.rotation_deg - start.rotation_deg, refined.dx_px - start.dx_px,
+                     refined.dy_px - start.dy_px};
+    if (std::isfinite(rho) && rigid_motion_px(diff, from.full_size) < 4.0 / from.coarse_scale) {
+      est.relative = refined;
+      est.quality = std::clamp(rho, 0.0, 1.0);
+      est.ecc_ok = true;
+      return true;
+    }
+  } catch (const cv::Exception&) {
+    // ECC did not converge.
+  }
+  return false;
+}
+
+}  // namespace
+
+PairEstimate estimate_pair(const RegisterFrame& from, const RegisterFrame& to,
+                           const RegisterOptions& options, const Rigid* initial) {
+  if (from.full_size != to.full_size || from.fine.size() != to.fine.size())
+    throw Error(cat("estimate_pair: slices differ in size (", from.full_size.width, "x",
+                    from.full_size.height, " and ", to.full_size.width, "x", to.full_size.height,
+                    ")"));
+  PairEstimate est;
+  if (options.method == "none") {
+    est.quality = 1.0;
+    est.ecc_ok = true;
+    return est;
+  }
+  const cv::Point2d centre = image_centre(from.full_size);
+  // A good starting estimate (a skip edge composed from two neighbour edges): the fine step
+  // alone; the full search only if that fails.
+  if (initial && options.method == "phase+ecc") {
+    PairEstimate quick;
+    if (refine_fine(from, to, options, *initial, rigid_matrix(*initial, centre), quick))
+      return quick;
+  }
+  // 1. Coarse: phase correlation at a rotation φ of the `to` slice. The phase-correlation peak
+  //    favours interpolated (smoother) images, so candidates are ranked by the normalised
+  //    correlation of the aligned images instead.
+  cv::Mat window;
+  cv::createHanningWindow(window, from.coarse.size(), CV_32F);
+  const cv::Point2d cc = image_centre(from.coarse.size());
+  const cv::Rect inner(from.coarse.cols / 10, from.coarse.rows / 10, from.coarse.cols * 8 / 10,
+                       from.coarse.rows * 8 / 10);
+  const cv::Mat from_inner = from.coarse(inner);
+  // cv::phaseCorrelate multiplies its inputs by the window in place (OpenCV 4.6), so the
+  // window is applied here to copies and no window is passed.
+  const cv::Mat from_windowed = from.coarse.mul(window);
+  struct Candidate {
+    double angle, response, score;
+    cv::Point2d shift;  // coarse pixels, rotated frame: W(x) = c + R(φ)(x + s − c)
+  };
+  auto evaluate = [&](double angle) {
+    Candidate cand{angle, 0.0, -2.0, {}};
+    cv::Mat rotated = rotate_about_centre(to.coarse, angle);
+    cand.shift =
+        cv::phaseCorrelate(from_windowed, rotated.mul(window), cv::noArray(), &cand.response);
+    const double a = angle * kPi / 180.0;
+    const cv::Point2d rs(std::cos(a) * cand.shift.x - std::sin(a) * cand.shift.y,
+                         std::sin(a) * cand.shift.x + std::cos(a) * cand.shift.y);
+    cv::Mat aligned;
+    cv::warpAffine(to.coarse, aligned, cv::Mat(rigid_matrix({angle, rs.x, rs.y}, cc)),
+                   from.coarse.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP,
+                   cv::BORDER_REPLICATE);
+    cv::Mat score;
+    cv::matchTemplate(aligned(inner), from_inner, score, cv::TM_CCOEFF_NORMED);
+    cand.score = std::isfinite(score.at<float>(0, 0)) ? score.at<float>(0, 0) : -1.0;
+    return cand;
+  };
+  auto to_rigid = [&](const Candidate& c) {
+    const double a = c.angle * kPi / 180.0;
+    const cv::Point2d rs(std::cos(a) * c.shift.x - std::sin(a) * c.shift.y,
+                         std::sin(a) * c.shift.x + std::cos(a) * c.shift.y);
+    return rigid_from_matrix(
+        unscale_affine(rigid_matrix({c.angle, rs.x, rs.y}, cc), from.coarse_scale), centre);
+  };
+  // The sweep over −10°..10°, refined by half steps and a parabola.
+  auto sweep = [&]() {
+    std::vector<Candidate> grid;
+    for (double a = -kAngleRange; a <= kAngleRange + 1e-9; a += kAngleStep)
+      grid.push_back(evaluate(a));
+    std::size_t bi = 0;
+    for (std::size_t i = 1; i < grid.size(); ++i)
+      if (grid[i].score > grid[bi].score) bi = i;
+    Candidate best = grid[bi];
+    Candidate lo = evaluate(best.angle - kAngleStep * 0.5),
+              hi = evaluate(best.angle + kAngleStep * 0.5);
+    const double denom = lo.score - 2.0 * best.score + hi.score;
+    double angle = best.angle;
+    if (denom < 0.0) {
+      angle += std::clamp(0.5 * (lo.score - hi.score) / denom, -0.5, 0.5) * kAngleStep * 0.5;
+    } else if (lo.score > best.score || hi.score > best.score) {
+      angle = lo.score > hi.score ? lo.angle : hi.angle;
+    }
+    if (angle != best.angle) {
+      Candidate refined = evaluate(angle);
+      if (refined.score >= std::max(best.score, std::max(lo.score, hi.score)) - 1e-3) {
+        best = refined;
+      } else {
+        best = lo.score > hi.score ? (lo.score > best.score ? lo : best)
+                                   : (hi.score > best.score ? hi : best);
+      }
+    }
+    return best;
+  };
+  // Coarse ECC from a phase estimate; returns rho (−1 on failure) and updates `m`.
+  auto coarse_ecc = [&](cv::Matx23d& m) {
+    try {
+      const double rho = ecc_level(from.coarse, to.coarse, from.coarse_scale, m, 30, 1e-4);
+      return std::isfinite(rho) ? rho : -1.0;
+    } catch (const cv::Exception&) {
+      return -1.0;
+    }
+  };
+  Candidate best{};
+  if (options.method == "phase") {
+    best = sweep();
+  } else {
+    best = evaluate(0.0);
+  }
+  est.response = std::clamp(best.response, 0.0, 1.0);
+  est.relative = to_rigid(best);
+  est.quality = std::clamp(best.score, 0.0, 1.0);
+  if (options.method == "phase") return est;
+
+  // 2. Coarse ECC from the 0° estimate; the sweep only when that is not confident.
+  constexpr double kConfident = 0.85;
+  Rigid start = est.relative;
+  cv::Matx23d m = rigid_matrix(start, centre);
+  double rho_coarse = coarse_ecc(m);
+  if (rho_coarse < kConfident) {
+    Candidate swept = sweep();
+    cv::Matx23d m2 = rigid_matrix(to_rigid(swept), centre);
+    const double rho2 = coarse_ecc(m2);
+    if (rho2 > rho_coarse || (rho_coarse < 0 && swept.score > best.score)) {
+      best = swept;
+      start = to_rigid(swept);
+      m = m2;
+      rho_coarse = rho2;
+      est.response = std::clamp(best.response, 0.0, 1.0);
+      est.relative = start;
+      est.quality = std::clamp(best.score, 0.0, 1.0);
+    }
+  }
+  if (rho_coarse < 0) {
+    m = rigid_matrix(start, centre);  // coarse ECC failed: from the phase estimate
+  } else {
+    start = rigid_from_matrix(m, centre);
+    est.relative = start;
+  }
+
+  // 3. ECC at ecc_scale.
+  if (!refine_fine(from, to, options, start, m, est)) est.quality = std::min(est.quality, 0.5);
+  return est;
+}
+
+nlohmann::json to_json(const SlicePairs& p) {
+  nlohmann::json edges = nlohmann::json::array();
+  for (const auto& e : p.edges)
+    edges.push_back({{"from", e.from},
+                     {"to", e.to},
+                     {"rotation_deg", e.relative.rotation_deg},
+                     {"dx_px", e.relative.dx_px},
+                     {"dy_px", e.relative.dy_px},
+                     {"weight", e.weight}});
+  nlohmann::json fiducials = nlohmann::json::array();
+  for (const auto& f : p.fiducials)
+    fiducials.push_back({f.x, f.y});
+  return {{"index", p.index},
+          {"black", p.black},
+          {"duplicate_of", p.duplicate_of ? nlohmann::json(*p.duplicate_of) : nlohmann::json()},
+          {"pixel_hash", hex64(p.pixel_hash)},
+          {"quality", p.quality},
+          {"edges", edges},
+          {"fiducials", fiducials},
+          {"anchor", p.anchor ? to_json(*p.anchor) : nlohmann::json()}};
+}
+
+SlicePairs slice_pairs_from_json(const nlohmann::json& j, const std::string& what) {
+  try {
+    SlicePairs p;
+    p.index = j.at("index").get<int>();
+    p.black = j.at("black").get<bool>();
+    if (!j.at("duplicate_of").is_null()) p.duplicate_of = j.at("duplicate_of").get<int>();
+    p.pixel_hash = std::stoull(j.at("pixel_hash").get<std::string>(), nullptr, 16);
+    p.quality = j.at("quality").get<double>();
+    for (const auto& e : j.at("edges")) {
+      PairEdge edge;
+      edge.from = e.at("from").get<int>();
+      edge.to = e.at("to").get<int>();
+      edge.relative = {e.at("rotation_deg").get<double>(), e.at("dx_px").get<double>(),
+                       e.at("dy_px").get<double>()};
+      edge.weight = e.at("weight").get<double>();
+      if (!(edge.weight > 0.0) || edge.to != p.index || edge.from >= edge.to || edge.from < 0)
+        throw FormatError("bad edge");
+      p.edges.push_back(edge);
+    }
+    if (j.contains("fiducials")) {
+      for (const auto& f : j.at("fiducials")) {
+        const cv::Point2d pt(f.at(0).get<double>(), f.at(1).get<double>());
+        if (!std::isfinite(pt.x) || !std::isfinite(pt.y)) throw FormatError("bad fiducial");
+        p.fiducials.push_back(pt);
+      }
+    }
+    if (j.contains("anchor") && !j.at("anchor").is_null())
+      p.anchor = anchor_from_json(j.at("anchor"), what);
+    return p;
+  } catch (const std::exception& e) {
+    throw FormatError(cat(what, ": malformed pair record: ", e.what()));
+  }
+}
+
+std::vector<SlicePairs> compute_pairs(
+    int first, int last, const std::function<RegisterFrame(int)>& frame,
+    const RegisterOptions& options, int threads,
+    const std::function<std::optional<AnchorEstimate>(int, const RegisterFrame&)>& anchor) {
+  std::vector<SlicePairs> out;
+  if (last <= first) return out;
+  const int lo = std::max(0, first - kLookBack);
+  // Frames are prepared in blocks so memory stays bounded by the block (plus the look-back).
+  constexpr int kBlock = 32;
+  std::map<int, RegisterFrame> frames;
+  std::map<int, SlicePairs> status;  // black / duplicate status of every prepared slice
+  out.reserve(std::size_t(last - first));
+  for (int block = lo; block < last; block += kBlock) {
+    const int block_end = std::min(last, block + kBlock);
+    std::vector<RegisterFrame> prepared(std::size_t(block_end - block));
+    parallel_for(block_end - block, threads,
+                 [&](std::int64_t i) { prepared[std::size_t(i)] = frame(block + int(i)); });
+    for (int k = block; k < block_end; ++k) {
+      RegisterFrame& f = prepared[std::size_t(k - block)];
+      SlicePairs s;
+      s.index = k;
+      s.black = f.black;
+      s.pixel_hash = f.pixel_hash;
+      s.quality = s.black ? 0.0 : 1.0;
+      s.fiducials = f.fiducials;
+      if (!s.black) {
+        for (int j = k - 1; j >= std::max(0, k - kLookBack); --j) {
+          auto it = status.find(j);
+          if (it == status.end() || it->second.black) continue;
+          if (it->second.pixel_hash == s.pixel_hash && frames.at(j).full_size == f.full_size) {
+            s.duplicate_of = it->second.duplicate_of ? *it->second.duplicate_of : j;
+            break;
+          }
+        }
+      }
+      status[k] = s;
+      frames[k] = std::move(f);
+    }
+    // Edges of the block's slices inside [first, last): first every slice's edge from its
+    // previous usable slice (the full search), then the skip edges from the one before, each
+    // started from the composition of two measured neighbour edges where there is one.
+    struct Job {
+      int from, to;
+    };
+    // The look-back slices before `first` get their nearest edges too (not returned): the
+    // skip edges into `first` start from them exactly as in an unsharded run, so shards
+    // reproduce the unsharded records.
+    std::vector<Job> nearest, skip;
+    for (int k = std::max(lo, block); k < block_end; ++k) {
+      const SlicePairs& s = status[k];
+      if (s.black || s.duplicate_of) continue;
+      int found = 0;
+      for (int j = k - 1; j >= std::max(lo, k - kLookBack) && found < 2; --j) {
+        const SlicePairs& p = status.at(j);
+        if (p.black || p.duplicate_of) continue;
+        if (found == 0) {
+          nearest.push_back({j, k});
+        } else if (k >= first) {
+          skip.push_back({j, k});
+        }
+        ++found;
+      }
+    }
+    auto record = [&](const Job& job, const PairEstimate& r) {
+      SlicePairs& s = status[job.to];
+      const bool is_nearest = s.edges.empty();  // nearest edges are recorded first
+      s.edges.push_back({job.from, job.to, r.relative, r.ecc_ok ? 1.0 : 0.05});
+      if (is_nearest) s.quality = r.quality;
+    };
+    std::vector<PairEstimate> results(nearest.size());
+    parallel_for(std::int64_t(nearest.size()), threads, [&](std::int64_t i) {
+      const Job& job = nearest[std::size_t(i)];
+      results[std::size_t(i)] = estimate_pair(frames.at(job.from), frames.at(job.to), options);
+    });
+    for (std::size_t i = 0; i < nearest.size(); ++i)
+      record(nearest[i], results[i]);
+    // The measured edge i→k and j→i (i = k's nearest usable predecessor) compose to a start.
+    auto composed = [&](const Job& job) -> std::optional<Rigid> {
+      const SlicePairs& sk = status.at(job.to);
+      if (sk.edges.empty() || sk.edges[0].weight < 1.0) return std::nullopt;
+      const int i = sk.edges[0].from;
+      auto it = status.find(i);
+      if (it == status.end() || it->second.edges.empty()) return std::nullopt;
+      const PairEdge& ji = it->second.edges[0];
+      if (ji.from != job.from || ji.weight < 1.0) return std::nullopt;
+      const cv::Point2d c = image_centre(frames.at(job.to).full_size);
+      return rigid_from_matrix(
+          compose_affine(rigid_matrix(sk.edges[0].relative, c), rigid_matrix(ji.relative, c)), c);
+    };
+    results.assign(skip.size(), PairEstimate{});
+    parallel_for(std::int64_t(skip.size()), threads, [&](std::int64_t i) {
+      const Job& job = skip[std::size_t(i)];
+      const std::optional<Rigid> start = composed(job);
+      results[std::size_t(i)] =
+          estimate_pair(frames.at(job.from), frames.at(job.to), options, start ? &*start : nullptr);
+    });
+    for (std::size_t i = 0; i < skip.size(); ++i)
+      record(skip[i], results[i]);
+    // CT anchors of the block's slices inside [first, last).
+    if (anchor) {
+      std::vector<int> todo;
+      for (int k = std::max(first, block); k < block_end; ++k)
+        if (!status[k].black) todo.push_back(k);
+      std::vector<std::optional<AnchorEstimate>> found(todo.size());
+      parallel_for(std::int64_t(todo.size()), threads, [&](std::int64_t i) {
+        const int k = todo[std::size_t(i)];
+        found[std::size_t(i)] = anchor(k, frames.at(k));
+      });
+      for (std::size_t i = 0; i < todo.size(); ++i)
+        status[todo[i]].anchor = found[i];
+    }
+    for (int k = std::max(first, block); k < block_end; ++k)
+      out.push_back(status[k]);
+    // Keep only the look-back window of frames.
+    while (!frames.empty() && frames.begin()->first < block_end - kLookBack)
+      frames.erase(frames.begin());
+  }
+  return out;
+}
+
+}  // namespace vispack::pipeline

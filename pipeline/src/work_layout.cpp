@@ -1,0 +1,150 @@
+#include "vispack/pipeline/work_layout.h"
+
+#include <cstdio>
+#include <filesystem>
+#include <set>
+
+#include "vispack/common/error.h"
+
+namespace vispack::pipeline {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+std::string padded(int index) {
+  char buffer[32];
+  std::snprintf(buffer, sizeof buffer, "%04d", index);
+  return buffer;
+}
+
+cv::Mat read_checked(const std::string& path, int type, cv::Size size) {
+  if (!fs::exists(path))
+    throw InputError(cat(path, ": missing intermediate (run the earlier stages first)"));
+  cv::Mat m = read_slice(path);
+  if (m.type() != type)
+    throw InputError(cat(path, ": unexpected pixel type (expected ",
+                         type == CV_8UC3   ? "8-bit RGB"
+                         : type == CV_8UC1 ? "8-bit grey"
+                                           : "16-bit grey",
+                         ")"));
+  if (m.size() != size)
+    throw InputError(
+        cat(path, ": is ", m.cols, "x", m.rows, ", expected ", size.width, "x", size.height));
+  return m;
+}
+
+}  // namespace
+
+std::string stage_dir(const Config& config, const std::string& stage) {
+  return config.work_dir + "/" + stage;
+}
+
+std::string slice_output_path(const Config& config, const std::string& stage,
+                              const std::string& prefix, int index, const std::string& ext) {
+  return stage_dir(config, stage) + "/" + prefix + "_" + padded(index) + "." + ext;
+}
+
+std::string transforms_path(const Config& config) {
+  return stage_dir(config, "register") + "/transforms.json";
+}
+
+std::string registered_rgb_path(const Config& config, int index) {
+  return stage_dir(config, "register") + "/registered/rgb_" + padded(index) + ".png";
+}
+
+std::string mask_path(const Config& config, int index) {
+  return slice_output_path(config, "mask", "mask", index);
+}
+
+std::string mask_ct_path(const Config& config, int index) {
+  return slice_output_path(config, "mask", "ct", index);
+}
+
+std::string labels_path(const Config& config, int index) {
+  return slice_output_path(config, "labels", "labels", index);
+}
+
+std::vector<SliceFile> stack_slices(const Config& config) {
+  std::vector<SliceFile> files = list_slices(config.rgb);
+  if (config.ct) {
+    // CT slice k + slice_offset lies on colour slice k: matched by position, so a CT slice
+    // missing inside the CT stack would shift every later one (issue 7). The step is the
+    // smallest difference between consecutive CT numbers (1 for ct_0000, ct_0001, ...).
+    const std::vector<SliceFile> ct = list_slices(*config.ct);
+    int step = 0;
+    for (std::size_t i = 1; i < ct.size(); ++i) {
+      const int d = ct[i].number - ct[i - 1].number;
+      if (step == 0 || d < step) step = d;
+    }
+    for (std::size_t i = 1; i < ct.size(); ++i) {
+      if (ct[i].number - ct[i - 1].number > step) {
+        throw InputError(cat(config.ct->dir, ": CT slice ", ct[i - 1].number + step,
+                             " is missing (", fs::path(ct[i - 1].path).filename().string(),
+                             " is followed by ", fs::path(ct[i].path).filename().string(),
+                             "); CT slices are matched to colour slices by position"));
+      }
+    }
+  }
+  return files;
+}
+
+StackTransforms read_stack_transforms(const Config& config, int slice_count) {
+  const std::string path = transforms_path(config);
+  if (!fs::exists(path)) throw InputError(cat(path, ": missing; run vispack-register first"));
+  StackTransforms transforms = read_transforms(path);
+  if (int(transforms.slices.size()) != slice_count) {
+    // Name the slice at fault: one that transforms.json lists but the folder lacks (a slice
+    // deleted since register ran), else one the folder has but transforms.json lacks (added).
+    std::set<std::string> now;
+    for (const auto& f : stack_slices(config))
+      now.insert(fs::path(f.path).filename().string());
+    std::set<std::string> then;
+    for (const auto& s : transforms.slices) {
+      then.insert(s.file);
+      if (!s.file.empty() && !now.count(s.file))
+        throw InputError(cat((fs::path(config.rgb.dir) / s.file).string(),
+                             ": slice is gone since vispack-register ran (", path, " has ",
+                             transforms.slices.size(), " slices, the stack has ", slice_count,
+                             "); rerun vispack-register"));
+    }
+    for (const auto& name : now)
+      if (!then.count(name))
+        throw InputError(cat((fs::path(config.rgb.dir) / name).string(),
+                             ": slice is new since vispack-register ran (", path, " has ",
+                             transforms.slices.size(), " slices, the stack has ", slice_count,
+                             "); rerun vispack-register"));
+    throw InputError(cat(path, ": has ", transforms.slices.size(), " slices but the stack has ",
+                         slice_count, "; rerun vispack-register"));
+  }
+  return transforms;
+}
+
+Fingerprint intermediates_fingerprint(const Config& config, int slice_count) {
+  Fingerprint fp;
+  fp.file(transforms_path(config));
+  for (int k = 0; k < slice_count; ++k) {
+    fp.file(registered_rgb_path(config, k)).file(mask_path(config, k));
+    if (config.ct) fp.file(mask_ct_path(config, k));
+    if (config.seg) fp.file(labels_path(config, k));
+  }
+  return fp;
+}
+
+Intermediates read_intermediates(const Config& config, int index, cv::Size size) {
+  Intermediates in;
+  in.rgb = read_checked(registered_rgb_path(config, index), CV_8UC3, size);
+  in.mask = read_checked(mask_path(config, index), CV_8UC1, size);
+  in.bytes = in.rgb.total() * 3 + in.mask.total();
+  if (config.ct) {
+    in.ct = read_checked(mask_ct_path(config, index), CV_16UC1, size);
+    in.bytes += in.ct.total() * 2;
+  }
+  if (config.seg) {
+    in.labels = read_checked(labels_path(config, index), CV_16UC1, size);
+    in.bytes += in.labels.total() * 2;
+  }
+  return in;
+}
+
+}  // namespace vispack::pipeline
