@@ -3,6 +3,7 @@
 # file with format_make_sample and runs the consumer on it.
 # -D BUILD_DIR=<vispack build> -D SOURCE_DIR=<vispack source> -D WORK_DIR=<scratch>
 #    -D SAMPLE_TOOL=<format_make_sample> -D CXX=<compiler> [-D GENERATOR=<generator>]
+#    [-D LINK_FLAGS=<flags the consumer compiles and links with: the sanitizers of a sanitized build>]
 foreach(v BUILD_DIR SOURCE_DIR WORK_DIR SAMPLE_TOOL CXX)
   if(NOT DEFINED ${v})
     message(FATAL_ERROR "run.cmake needs -D ${v}=...")
@@ -26,7 +27,8 @@ if(DEFINED GENERATOR AND NOT GENERATOR STREQUAL "")
 endif()
 step("configure the consumer" ${CMAKE_COMMAND} -S "${SOURCE_DIR}/tests/consumer"
      -B "${WORK_DIR}/build" ${gen_args} -DCMAKE_BUILD_TYPE=Release
-     -DCMAKE_CXX_COMPILER=${CXX} "-DCMAKE_PREFIX_PATH=${WORK_DIR}/prefix")
+     -DCMAKE_CXX_COMPILER=${CXX} "-DCMAKE_PREFIX_PATH=${WORK_DIR}/prefix"
+     "-DCMAKE_CXX_FLAGS=${LINK_FLAGS}" "-DCMAKE_EXE_LINKER_FLAGS=${LINK_FLAGS}")
 step("build the consumer" ${CMAKE_COMMAND} --build "${WORK_DIR}/build")
 step("write a sample" "${SAMPLE_TOOL}" "${WORK_DIR}/sample.vpk")
 step("run the consumer" "${WORK_DIR}/build/consumer" "${WORK_DIR}/sample.vpk")

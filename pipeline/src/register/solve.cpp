@@ -502,6 +502,12 @@ constexpr double kFixedWeight = 1e8;         // a person's fixed transform
 constexpr double kTinyBodyFraction = 0.005;  // body below 0.5 % of the frame: no pair edge
 constexpr double kSmoothSigmaPx = 0.5;       // smoothness prior: second difference of the shift
 constexpr double kSmoothSigmaDeg = 0.05;     // and of the rotation, per slice²
+// Random-walk prior: the first difference of T is ~0 within these per slice (√gap across a
+// gap), cut at jumps. The drift of a cryosection stack is a slow random walk (~0.3 px and
+// ~0.05° per slice); these are twice that, so they only decide where anchors are noisy (a
+// small body's rotation) or missing, and never integrate a measurement.
+constexpr double kWalkSigmaPx = 0.6;
+constexpr double kWalkSigmaDeg = 0.1;
 
 // Sparse weighted least squares over a banded block (slices) and a dense border (free frames).
 class LeastSquares {
@@ -761,6 +767,8 @@ StackSolve solve_stack(const std::vector<SlicePairs>& pairs, cv::Size size,
   }
   const double ws_shift = 1.0 / (kSmoothSigmaPx * kSmoothSigmaPx);
   const double ws_rot = 1.0 / (kSmoothSigmaDeg * kSmoothSigmaDeg);
+  const double ww_shift = 1.0 / (kWalkSigmaPx * kWalkSigmaPx);
+  const double ww_rot = 1.0 / (kWalkSigmaDeg * kWalkSigmaDeg);
   // Robust weights (Cauchy) of anchors and curvature terms, per component (rotation, shift).
   std::vector<double> ra_rot(static_cast<std::size_t>(m), 1.0), ra_shift(std::size_t(m), 1.0);
   std::vector<double> rc_rot(static_cast<std::size_t>(m), 1.0), rc_shift(std::size_t(m), 1.0);
@@ -812,6 +820,8 @@ StackSolve solve_stack(const std::vector<SlicePairs>& pairs, cv::Size size,
           const PairEdge& e = *primary[std::size_t(i)];
           rot.row({{i, 1.0}, {i - 1, -1.0}}, e.relative.rotation_deg, w1_rot * e.weight);
         }
+        if (i >= 1 && !cut[std::size_t(i)])
+          rot.row({{i, 1.0}, {i - 1, -1.0}}, 0.0, ww_rot / gap(i));
         if (smooth_ok(i))
           rot.row({{i + 1, 1.0 / gap(i + 1)},
                    {i, -1.0 / gap(i + 1) - 1.0 / gap(i)},
@@ -862,6 +872,13 @@ StackSolve solve_stack(const std::vector<SlicePairs>& pairs, cv::Size size,
                  e.relative.dx_px, w);
           sh.row({{2 * i + 1, 1.0}, {2 * (i - 1), -r(1, 0)}, {2 * (i - 1) + 1, -r(1, 1)}},
                  e.relative.dy_px, w);
+        }
+        if (i >= 1 && !cut[std::size_t(i)]) {
+          // d_i − R(θ_i − θ_{i−1}) d_{i−1} = 0: no motion between neighbours (random walk).
+          const cv::Matx22d r = rmat(i, i - 1);
+          const double w = ww_shift / gap(i);
+          sh.row({{2 * i, 1.0}, {2 * (i - 1), -r(0, 0)}, {2 * (i - 1) + 1, -r(0, 1)}}, 0.0, w);
+          sh.row({{2 * i + 1, 1.0}, {2 * (i - 1), -r(1, 0)}, {2 * (i - 1) + 1, -r(1, 1)}}, 0.0, w);
         }
         if (smooth_ok(i)) {
           const double g1 = gap(i), g2 = gap(i + 1);

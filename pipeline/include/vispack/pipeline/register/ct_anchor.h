@@ -7,9 +7,11 @@
 //
 // Method (estimate_ct_anchor), on a working grid at CT resolution (the output grid scaled by
 // anchor_scale = colour pixel / CT pixel, at most 1):
-//   1. Template: the CT slice resampled onto the working output grid through ct_to_rgb
-//      (outside the CT: −1000 HU), clamped to [−1000, 1000] HU. Its body (HU > hu_threshold)
-//      gives the body fraction and the radius of gyration (the lever arm of the rotation).
+//   1. Template: the CT slice's body (outline.h ct_body_mask, grown by one CT pixel; the
+//      head-holder or table around it, which the colour slice does not show, becomes air)
+//      resampled onto the working output grid through ct_to_rgb (outside the CT: −1000 HU),
+//      clamped to [−1000, 1000] HU. Its body (HU > hu_threshold) gives the body fraction and
+//      the radius of gyration (the lever arm of the rotation).
 //   2. Capture: soft body masks of both modalities (CT: HU around hu_threshold; colour:
 //      distance from the gel colour, taken as the median of the slice border) at a level whose
 //      longer edge is about 128 px; phase correlation at rotations −10°..10° (step 2.5°, best
@@ -22,7 +24,12 @@
 //      current alignment (the correlation ratio with a polynomial intensity function, a
 //      standard multimodal measure). ECC (MOTION_EUCLIDEAN, sub-pixel) then aligns predicted
 //      and CT; the polynomial is refitted and ECC repeated (half working resolution, then full).
-//   4. lever_px: how well the template pins rotation (below); correlation = the final ECC
+//   4. Outline refinement: ECC of the two soft body masks (each cut to its largest component,
+//      so fiducial tubes in the gel take no part) at full working resolution, from step 3's
+//      result; kept when it converges within a few pixels of it. The outline is what both
+//      modalities show alike; the intensity map of step 3 is not exact inside the body, which
+//      biased a small body's rotation by tenths of a degree (docs/BENCHMARKS.md, issue #11).
+//   5. lever_px: how well the template pins rotation (below); correlation = the final ECC
 //      coefficient; confidence = clamp((correlation − 0.4) / 0.4)
 //      × clamp(body_fraction / 0.03): slices whose body is a small patch (the ends of the
 //      stack) or whose match is poor get low confidence; none (body_fraction < 0.1 %) → not ok.
@@ -67,7 +74,9 @@ struct AnchorEstimate {
   // body with structure; → 0 for a featureless disk (the top of a head), whose rotation the
   // anchor cannot see.
   double lever_px = 0.0;
-  double sigma_px = 0.0;  // nominal 1σ position error at confidence 1, colour pixels
+  // Nominal 1σ position error at confidence 1, colour pixels: the best case (0.05 working px);
+  // the solve inflates it from the residuals where a stack's anchors do worse.
+  double sigma_px = 0.0;
 };
 nlohmann::json to_json(const AnchorEstimate& a);
 // Throws FormatError naming `what` on a malformed record.

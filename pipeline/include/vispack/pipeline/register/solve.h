@@ -1,7 +1,8 @@
 // The global solve: every slice's transform T_k from all measurements at once.
 //
 // Measurements (register/pair.h, register/ct_anchor.h):
-//   anchor a_k   T_k measured against CT slice k: absolute, drift-free, noisy (σ_a ≈ 0.2 CT px),
+//   anchor a_k   T_k measured against CT slice k: absolute, drift-free, noisy (σ_a ≈ 0.05 CT px
+//                nominal, inflated from the residuals),
 //                weighted by its confidence; the rotation by confidence · lever² (the lever from
 //                the CT template's gradients: a featureless patch says little about rotation).
 //   pair   P_jk  T_k ∘ T_j⁻¹ between neighbours: precise (σ_p ≈ 0.05 px) but it also measures
@@ -15,6 +16,7 @@
 // P_{k−1,k}/g_k)|²
 //                                                                     (pair CURVATURE terms)
 // + Σ_k w_1 |T_k ⊖ T_{k−1} − P_{k−1,k}|²                              (weak first-order pair terms)
+// + Σ_k w_w |T_k ⊖ T_{k−1}|² / g_k                                     (random-walk prior)
 // + fiducial group terms,
 // with g the slice gap between usable neighbours and A ⊖ B the relative transform. Pair
 // measurements enter (almost) only through the DIFFERENCE of consecutive pair estimates, so a
@@ -28,8 +30,11 @@
 // anchors cannot confirm. After each solve, every class of measurement gets a noise scale from
 // its residuals (median, inflate only) and each term a Cauchy weight (3 passes): a wrong anchor
 // on a tiny patch or a lost pair at the stack's end does not pull its neighbours. A weak
-// smoothness prior (second differences, σ 0.5 px / 0.05°) decides where nothing else does (the
-// ends of the stack, empty slices); jumps cut it. Fiducial groups (tubes) add free group frames.
+// smoothness prior (second differences, σ 0.5 px / 0.05°) and a weak random-walk prior (first
+// differences towards no motion, σ 0.6 px / 0.1° per slice: twice the drift of a real stack)
+// decide where nothing else does (the ends of the stack, empty slices, a small body's rotation);
+// jumps cut both. The random-walk prior pulls towards zero motion, never towards a measurement,
+// so it integrates nothing. Fiducial groups (tubes) add free group frames.
 // Marked jumps (overrides) and missing pair edges cut the pair terms.
 // Without CT: anchor mode "fiducials" (the legacy chain plus fiducial groups, slice 0 the
 // reference) or "none" (the chain regularised towards no drift over ~100 slices: absolute drift
