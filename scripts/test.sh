@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Runs the whole test suite: installs what is missing, fetches the real sample data, builds Release,
+# Runs the whole test suite: installs what is missing, fetches the real sample data, checks the
+# C++ formatting (scripts/check-format.sh), builds Release,
 # runs ctest (unit, command-line and headless image tests), then the sanitizer build (ASan+UBSan)
 # of every test but the benchmarks, short fuzz runs and the quick benchmark. Both builds use
 # -Werror (VISPACK_WERROR). Prints each step's time and the total.
@@ -14,7 +15,7 @@ for arg in "$@"; do
     --no-sanitize) sanitize=0 ;;
     --no-fuzz) fuzz=0 ;;
     --no-bench) bench=0 ;;
-    -h|--help) sed -n '2,6p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,7p' "$0"; exit 0 ;;
     *) echo "test.sh: unknown option $arg" >&2; exit 2 ;;
   esac
 done
@@ -56,6 +57,9 @@ if [[ -x scripts/fetch-sample-data.sh ]]; then
 fi
 
 failed=0
+stamp "Checking the C++ formatting (scripts/check-format.sh)"
+scripts/check-format.sh || failed=1
+
 if [[ $main == 1 ]]; then
   stamp "Building (Release) into build/"
   scripts/build.sh "$root/build" -DVISPACK_WERROR=ON

@@ -23,7 +23,8 @@ bool starts_with(const std::string& s, const std::string& prefix) {
 }  // namespace
 
 Args::Args(std::string program, int argc, char** argv) : program_(std::move(program)) {
-  for (int i = 1; i < argc; ++i) args_.emplace_back(argv[i]);
+  for (int i = 1; i < argc; ++i)
+    args_.emplace_back(argv[i]);
   used_.assign(args_.size(), false);
   for (std::size_t i = 0; i < args_.size(); ++i) {
     if (args_[i] == "--help" || args_[i] == "-h") {
@@ -119,7 +120,8 @@ std::string Args::positional(const std::string& meta, const std::string& help, b
 
 std::string Args::usage() const {
   std::string text = cat("usage: ", program_, " ", synopsis_, "\n\n", description_, "\n\n");
-  for (const auto& line : help_lines_) text += line + "\n";
+  for (const auto& line : help_lines_)
+    text += line + "\n";
   text += "  --help\n      print this help and exit\n";
   return text;
 }
@@ -128,7 +130,8 @@ void Args::done() {
   if (help_requested_) throw HelpRequested{usage()};
   for (std::size_t i = 0; i < args_.size(); ++i) {
     if (!used_[i]) {
-      if (starts_with(args_[i], "-")) throw UsageError(cat("unknown option ", args_[i], " (see --help)"));
+      if (starts_with(args_[i], "-"))
+        throw UsageError(cat("unknown option ", args_[i], " (see --help)"));
       throw UsageError(cat("unexpected argument '", args_[i], "' (see --help)"));
     }
   }
@@ -142,7 +145,8 @@ SliceRange parse_slice_range(const std::string& text, int count) {
     if (part.empty()) return fallback;
     char* end = nullptr;
     long value = std::strtol(part.c_str(), &end, 10);
-    if (*end != '\0' || value < 0) throw UsageError(cat("--slices '", text, "': bad bound '", part, "'"));
+    if (*end != '\0' || value < 0)
+      throw UsageError(cat("--slices '", text, "': bad bound '", part, "'"));
     return int(std::min<long>(value, count));
   };
   SliceRange range{parse(text.substr(0, colon), 0), parse(text.substr(colon + 1), count)};

@@ -19,7 +19,7 @@ std::uint64_t xxh64_file(const std::string& path) {
   std::unique_ptr<FILE, int (*)(FILE*)> file(std::fopen(path.c_str(), "rb"), &std::fclose);
   if (!file) throw IoError(cat(path, ": cannot open: ", std::strerror(errno)));
   std::unique_ptr<XXH64_state_t, XXH_errorcode (*)(XXH64_state_t*)> state(XXH64_createState(),
-                                                                         &XXH64_freeState);
+                                                                          &XXH64_freeState);
   XXH64_reset(state.get(), 0);
   std::vector<char> buffer(1 << 20);
   for (;;) {

@@ -75,6 +75,9 @@ void write_image_file(const std::string& path, const ImageView& image,
     spec.attribute("png:compressionLevel", options.png_level);
   } else if (format == "tiff") {
     spec.attribute("compression", "zip");
+    // No DateTime tag (OpenImageIO stamps the current time otherwise): the same image gives the
+    // same bytes, which resume fingerprints and reproducible outputs rely on.
+    spec.attribute("DateTime", "");
   } else if (format == "jpeg") {
     spec.attribute("Compression", cat("jpeg:", options.jpeg_quality));
     spec.attribute("CompressionQuality", options.jpeg_quality);

@@ -21,28 +21,28 @@ struct TypeName {
   std::size_t size;
 };
 const TypeName kTypes[] = {
-    {NrrdType::kUint8, "uint8", 1},    {NrrdType::kInt8, "int8", 1},
-    {NrrdType::kUint16, "uint16", 2},  {NrrdType::kInt16, "int16", 2},
-    {NrrdType::kUint32, "uint32", 4},  {NrrdType::kInt32, "int32", 4},
-    {NrrdType::kFloat32, "float", 4},  {NrrdType::kFloat64, "double", 8},
+    {NrrdType::kUint8, "uint8", 1},   {NrrdType::kInt8, "int8", 1},
+    {NrrdType::kUint16, "uint16", 2}, {NrrdType::kInt16, "int16", 2},
+    {NrrdType::kUint32, "uint32", 4}, {NrrdType::kInt32, "int32", 4},
+    {NrrdType::kFloat32, "float", 4}, {NrrdType::kFloat64, "double", 8},
 };
 
 // Aliases that NRRD allows for the same type.
 const std::map<std::string, NrrdType>& type_aliases() {
   static const std::map<std::string, NrrdType> aliases = {
-      {"uchar", NrrdType::kUint8},          {"unsigned char", NrrdType::kUint8},
-      {"uint8", NrrdType::kUint8},          {"uint8_t", NrrdType::kUint8},
-      {"signed char", NrrdType::kInt8},     {"int8", NrrdType::kInt8},
-      {"int8_t", NrrdType::kInt8},          {"short", NrrdType::kInt16},
-      {"short int", NrrdType::kInt16},      {"signed short", NrrdType::kInt16},
-      {"int16", NrrdType::kInt16},          {"int16_t", NrrdType::kInt16},
-      {"ushort", NrrdType::kUint16},        {"unsigned short", NrrdType::kUint16},
-      {"uint16", NrrdType::kUint16},        {"uint16_t", NrrdType::kUint16},
-      {"int", NrrdType::kInt32},            {"int32", NrrdType::kInt32},
-      {"int32_t", NrrdType::kInt32},        {"signed int", NrrdType::kInt32},
-      {"uint", NrrdType::kUint32},          {"unsigned int", NrrdType::kUint32},
-      {"uint32", NrrdType::kUint32},        {"uint32_t", NrrdType::kUint32},
-      {"float", NrrdType::kFloat32},        {"double", NrrdType::kFloat64},
+      {"uchar", NrrdType::kUint8},      {"unsigned char", NrrdType::kUint8},
+      {"uint8", NrrdType::kUint8},      {"uint8_t", NrrdType::kUint8},
+      {"signed char", NrrdType::kInt8}, {"int8", NrrdType::kInt8},
+      {"int8_t", NrrdType::kInt8},      {"short", NrrdType::kInt16},
+      {"short int", NrrdType::kInt16},  {"signed short", NrrdType::kInt16},
+      {"int16", NrrdType::kInt16},      {"int16_t", NrrdType::kInt16},
+      {"ushort", NrrdType::kUint16},    {"unsigned short", NrrdType::kUint16},
+      {"uint16", NrrdType::kUint16},    {"uint16_t", NrrdType::kUint16},
+      {"int", NrrdType::kInt32},        {"int32", NrrdType::kInt32},
+      {"int32_t", NrrdType::kInt32},    {"signed int", NrrdType::kInt32},
+      {"uint", NrrdType::kUint32},      {"unsigned int", NrrdType::kUint32},
+      {"uint32", NrrdType::kUint32},    {"uint32_t", NrrdType::kUint32},
+      {"float", NrrdType::kFloat32},    {"double", NrrdType::kFloat64},
   };
   return aliases;
 }
@@ -71,8 +71,8 @@ std::string gzip_compress(const std::uint8_t* data, std::size_t size) {
   return out;
 }
 
-void gzip_decompress(const std::string& path, const char* data, std::size_t size,
-                     std::uint8_t* out, std::size_t out_size) {
+void gzip_decompress(const std::string& path, const char* data, std::size_t size, std::uint8_t* out,
+                     std::size_t out_size) {
   z_stream stream{};
   if (inflateInit2(&stream, 15 + 32) != Z_OK) throw Error("zlib: inflateInit2 failed");
   stream.next_in = reinterpret_cast<Bytef*>(const_cast<char*>(data));
@@ -83,8 +83,8 @@ void gzip_decompress(const std::string& path, const char* data, std::size_t size
   std::size_t produced = stream.total_out;
   inflateEnd(&stream);
   if (rc != Z_STREAM_END || produced != out_size) {
-    throw FormatError(cat(path, ": gzip data is corrupt or holds ", produced, " bytes, expected ",
-                          out_size));
+    throw FormatError(
+        cat(path, ": gzip data is corrupt or holds ", produced, " bytes, expected ", out_size));
   }
 }
 
@@ -116,15 +116,21 @@ void write_nrrd(const std::string& path, const NrrdVolume& volume, bool gzip) {
   header << "space dimension: 3\n";
   header << "sizes:";
   if (vector) header << " " << volume.components;
-  for (auto d : volume.dims) header << " " << d;
+  for (auto d : volume.dims)
+    header << " " << d;
   header << "\nspace directions:";
   if (vector) header << " none";
   for (int a = 0; a < 3; ++a) {
     header << " (";
-    for (int b = 0; b < 3; ++b) header << (b ? "," : "") << (a == b ? volume.spacing_mm[a] : 0.0);
+    for (int b = 0; b < 3; ++b)
+      header << (b ? "," : "") << (a == b ? volume.spacing_mm[a] : 0.0);
     header << ")";
   }
-  header << "\nkinds:" << (vector ? (volume.components == 3 ? " RGB-color" : volume.components == 4 ? " RGBA-color" : " vector") : "")
+  header << "\nkinds:"
+         << (vector ? (volume.components == 3   ? " RGB-color"
+                       : volume.components == 4 ? " RGBA-color"
+                                                : " vector")
+                    : "")
          << " domain domain domain\n";
   header << "space units: \"mm\" \"mm\" \"mm\"\n";
   header << "space origin: (" << volume.origin_mm[0] << "," << volume.origin_mm[1] << ","
@@ -143,7 +149,8 @@ void write_nrrd(const std::string& path, const NrrdVolume& volume, bool gzip) {
 
 NrrdVolume read_nrrd(const std::string& path) {
   std::string bytes = read_file(path);
-  if (bytes.compare(0, 4, "NRRD") != 0) throw FormatError(cat(path, ": not a NRRD file (no magic)"));
+  if (bytes.compare(0, 4, "NRRD") != 0)
+    throw FormatError(cat(path, ": not a NRRD file (no magic)"));
   std::size_t pos = bytes.find('\n');
   std::map<std::string, std::string> fields;
   for (;;) {
@@ -171,28 +178,35 @@ NrrdVolume read_nrrd(const std::string& path) {
   };
   NrrdVolume volume;
   auto type_it = type_aliases().find(need("type"));
-  if (type_it == type_aliases().end()) throw FormatError(cat(path, ": unsupported NRRD type '", need("type"), "'"));
+  if (type_it == type_aliases().end())
+    throw FormatError(cat(path, ": unsupported NRRD type '", need("type"), "'"));
   volume.type = type_it->second;
   int dimension = std::atoi(need("dimension").c_str());
-  if (dimension != 3 && dimension != 4) throw FormatError(cat(path, ": NRRD dimension ", dimension, " (need 3 or 4)"));
+  if (dimension != 3 && dimension != 4)
+    throw FormatError(cat(path, ": NRRD dimension ", dimension, " (need 3 or 4)"));
   std::istringstream sizes(need("sizes"));
   std::vector<long long> size_list;
   long long s;
-  while (sizes >> s) size_list.push_back(s);
-  if (int(size_list.size()) != dimension) throw FormatError(cat(path, ": NRRD sizes do not match dimension"));
+  while (sizes >> s)
+    size_list.push_back(s);
+  if (int(size_list.size()) != dimension)
+    throw FormatError(cat(path, ": NRRD sizes do not match dimension"));
   std::size_t total = nrrd_type_size(volume.type);
   for (long long v : size_list) {
     if (v <= 0 || v > (1LL << 31)) throw FormatError(cat(path, ": NRRD size ", v, " out of range"));
-    if (total > std::numeric_limits<std::size_t>::max() / std::size_t(v)) throw FormatError(cat(path, ": NRRD sizes overflow"));
+    if (total > std::numeric_limits<std::size_t>::max() / std::size_t(v))
+      throw FormatError(cat(path, ": NRRD sizes overflow"));
     total *= std::size_t(v);
   }
   int axis0 = 0;
   if (dimension == 4) {
-    if (size_list[0] > 4) throw FormatError(cat(path, ": NRRD first axis of ", size_list[0], " components (max 4)"));
+    if (size_list[0] > 4)
+      throw FormatError(cat(path, ": NRRD first axis of ", size_list[0], " components (max 4)"));
     volume.components = int(size_list[0]);
     axis0 = 1;
   }
-  for (int a = 0; a < 3; ++a) volume.dims[a] = size_list[axis0 + a];
+  for (int a = 0; a < 3; ++a)
+    volume.dims[a] = size_list[axis0 + a];
   // Spacing: "space directions" (diagonal taken as norm of each vector) or "spacings".
   if (fields.count("space directions")) {
     std::string text = fields["space directions"];
@@ -213,8 +227,10 @@ NrrdVolume read_nrrd(const std::string& path) {
     std::istringstream in(fields["spacings"]);
     std::string token;
     std::vector<double> values;
-    while (in >> token) values.push_back(token == "nan" ? 1.0 : std::atof(token.c_str()));
-    for (int a = 0; a < 3 && axis0 + a < int(values.size()); ++a) volume.spacing_mm[a] = values[axis0 + a];
+    while (in >> token)
+      values.push_back(token == "nan" ? 1.0 : std::atof(token.c_str()));
+    for (int a = 0; a < 3 && axis0 + a < int(values.size()); ++a)
+      volume.spacing_mm[a] = values[axis0 + a];
   }
   if (fields.count("space origin")) {
     std::string text = fields["space origin"];
@@ -240,7 +256,8 @@ NrrdVolume read_nrrd(const std::string& path) {
   }
   std::size_t scalar = nrrd_type_size(volume.type);
   if (scalar > 1 && fields.count("endian") && fields["endian"] == "big") {
-    for (std::size_t i = 0; i < total; i += scalar) std::reverse(&volume.data[i], &volume.data[i] + scalar);
+    for (std::size_t i = 0; i < total; i += scalar)
+      std::reverse(&volume.data[i], &volume.data[i] + scalar);
   }
   return volume;
 }

@@ -23,7 +23,8 @@ void parallel_for(std::int64_t count, int threads, const std::function<void(std:
   if (count <= 0) return;
   threads = resolve_threads(threads);
   if (threads <= 1 || count == 1) {
-    for (std::int64_t i = 0; i < count; ++i) fn(i);
+    for (std::int64_t i = 0; i < count; ++i)
+      fn(i);
     return;
   }
   std::atomic<std::int64_t> next{0};
@@ -48,9 +49,11 @@ void parallel_for(std::int64_t count, int threads, const std::function<void(std:
   int n = int(std::min<std::int64_t>(threads, count));
   std::vector<std::thread> pool;
   pool.reserve(std::size_t(n - 1));
-  for (int t = 1; t < n; ++t) pool.emplace_back(worker);
+  for (int t = 1; t < n; ++t)
+    pool.emplace_back(worker);
   worker();
-  for (auto& thread : pool) thread.join();
+  for (auto& thread : pool)
+    thread.join();
   if (first_error) std::rethrow_exception(first_error);
 }
 

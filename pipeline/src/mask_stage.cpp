@@ -14,9 +14,9 @@
 #include "vispack/pipeline/mask_stage.h"
 #include "vispack/pipeline/opencv_threads.h"
 #include "vispack/pipeline/register/ct_anchor.h"
-#include "vispack/pipeline/work_layout.h"
-#include "vispack/pipeline/transforms.h"
 #include "vispack/pipeline/slice_io.h"
+#include "vispack/pipeline/transforms.h"
+#include "vispack/pipeline/work_layout.h"
 
 namespace vispack::pipeline {
 namespace {

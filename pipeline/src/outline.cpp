@@ -62,7 +62,10 @@ cv::Mat open_disc(const cv::Mat& mask, int radius) {
 
 cv::Mat ct_body_mask(const cv::Mat& ct_hu, double hu_threshold) {
   cv::Mat hu = ct_hu_float(ct_hu);
-  cv::Mat raw = hu > hu_threshold;
+  // Holes filled first: a cavity near the body's edge (a sinus, an airway) leaves only a thin
+  // band of tissue between it and the outside, which the opening below would cut off with the
+  // holder (at the ends of the stack, where the body is a few CT pixels across, half the body).
+  cv::Mat raw = fill_holes(hu > hu_threshold);
   // The opening cuts thin bridges (head-holder, table); the largest component is the body.
   cv::Mat body = largest_component(open_disc(raw, kCtDetachPx));
   const cv::Rect bounds = cv::boundingRect(body);

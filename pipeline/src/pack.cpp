@@ -9,8 +9,8 @@
 
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
-#include "vispack/common/test_pause.h"
 #include "vispack/common/hash.h"
+#include "vispack/common/test_pause.h"
 #include "vispack/format/downsample.h"
 #include "vispack/format/writer.h"
 #include "vispack/pipeline/labels.h"

@@ -241,8 +241,8 @@ void write_image(const std::string& path, const cv::Mat& image, int jpeg_quality
   if (image.empty() || image.dims != 2) throw IoError(cat(path, ": cannot write an empty image"));
   const int depth = image.depth();
   if (depth != CV_8U && depth != CV_16U) {
-    throw IoError(cat(path, ": cannot write image: pixel type must be 8 or 16 bit (got depth ",
-                      depth, ")"));
+    throw IoError(
+        cat(path, ": cannot write image: pixel type must be 8 or 16 bit (got depth ", depth, ")"));
   }
   ImageView view;
   view.width = image.cols;

@@ -171,9 +171,9 @@ StackTransforms read_transforms(const std::string& path) {
       st.duplicate_of = get_key<int>(s, "duplicate_of", where, 0, true);
     st.quality = get_key<double>(s, "quality", where, 1.0, false);
     for (auto& [key, value] : s.items()) {
-      if (key != "index" && key != "number" && key != "file" && key != "dx_px" &&
-          key != "dy_px" && key != "rotation_deg" && key != "jump" && key != "black" &&
-          key != "duplicate_of" && key != "quality")
+      if (key != "index" && key != "number" && key != "file" && key != "dx_px" && key != "dy_px" &&
+          key != "rotation_deg" && key != "jump" && key != "black" && key != "duplicate_of" &&
+          key != "quality")
         st.extra[key] = value;
     }
     if (!std::isfinite(st.rigid.dx_px) || !std::isfinite(st.rigid.dy_px) ||

@@ -6,5 +6,7 @@
 #endif
 
 namespace vispack {
-const char* version_string() { return VISPACK_VERSION; }
+const char* version_string() {
+  return VISPACK_VERSION;
+}
 }  // namespace vispack

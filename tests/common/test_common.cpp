@@ -116,7 +116,8 @@ TEST_P(NrrdRoundTrip, ScalarAndColourVolumesSurviveBitExact) {
   ct.spacing_mm = {0.33, 0.5, 1.25};
   ct.origin_mm = {-10.5, 2.0, 3.25};
   ct.data.resize(ct.byte_size());
-  for (std::size_t i = 0; i < ct.voxel_count(); ++i) ct.as<std::int16_t>()[i] = std::int16_t(i * 97 - 1024);
+  for (std::size_t i = 0; i < ct.voxel_count(); ++i)
+    ct.as<std::int16_t>()[i] = std::int16_t(i * 97 - 1024);
   write_nrrd(dir / "ct.nrrd", ct, gzip);
   NrrdVolume back = read_nrrd(dir / "ct.nrrd");
   EXPECT_EQ(back.type, NrrdType::kInt16);
@@ -133,7 +134,8 @@ TEST_P(NrrdRoundTrip, ScalarAndColourVolumesSurviveBitExact) {
   rgb.components = 3;
   rgb.dims = {4, 2, 1};
   rgb.data.resize(rgb.byte_size());
-  for (std::size_t i = 0; i < rgb.data.size(); ++i) rgb.data[i] = std::uint8_t(i * 11);
+  for (std::size_t i = 0; i < rgb.data.size(); ++i)
+    rgb.data[i] = std::uint8_t(i * 11);
   write_nrrd(dir / "rgb.nrrd", rgb, gzip);
   NrrdVolume rgb_back = read_nrrd(dir / "rgb.nrrd");
   EXPECT_EQ(rgb_back.components, 3);
@@ -157,14 +159,16 @@ TEST(Nrrd, TruncatedAndBadFilesAreFormatErrors) {
                     "NRRD0004\ntype: uint8\ndimension: 3\nsizes: 4000000000 4000000000 4000000000\n"
                     "encoding: raw\n\n");
   EXPECT_THROW(read_nrrd(dir / "huge.nrrd"), FormatError);
-  write_file_atomic(dir / "type.nrrd", "NRRD0004\ntype: quaternion\ndimension: 3\nsizes: 1 1 1\nencoding: raw\n\nx");
+  write_file_atomic(dir / "type.nrrd",
+                    "NRRD0004\ntype: quaternion\ndimension: 3\nsizes: 1 1 1\nencoding: raw\n\nx");
   EXPECT_THROW(read_nrrd(dir / "type.nrrd"), FormatError);
 }
 
 namespace {
 int run_args(std::vector<std::string> words, const std::function<int(Args&)>& body) {
   std::vector<char*> argv;
-  for (auto& w : words) argv.push_back(w.data());
+  for (auto& w : words)
+    argv.push_back(w.data());
   return run_main("vispack-test", int(argv.size()), argv.data(), body);
 }
 }  // namespace
@@ -205,7 +209,8 @@ TEST(Args, AnUnknownOptionIsNamedBeforeAMissingPositional) {
   };
   const auto message = [&](std::vector<std::string> words) {
     std::vector<char*> argv;
-    for (auto& w : words) argv.push_back(w.data());
+    for (auto& w : words)
+      argv.push_back(w.data());
     Args args("prog", int(argv.size()), argv.data());
     try {
       body(args);
@@ -247,7 +252,8 @@ TEST(SliceRange, ParsesAndClamps) {
 TEST(ParallelFor, VisitsEveryIndexOnceAndPropagatesFirstError) {
   std::vector<std::atomic<int>> hits(1000);
   parallel_for(1000, 4, [&](std::int64_t i) { hits[std::size_t(i)]++; });
-  for (auto& h : hits) EXPECT_EQ(h.load(), 1);
+  for (auto& h : hits)
+    EXPECT_EQ(h.load(), 1);
   EXPECT_THROW(parallel_for(100, 3,
                             [](std::int64_t i) {
                               if (i == 37) throw InputError("slice 37 is bad");

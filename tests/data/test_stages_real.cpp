@@ -17,12 +17,12 @@
 #include "test_support.h"
 #include "vispack/pipeline/config.h"
 #include "vispack/pipeline/mask.h"
+#include "vispack/pipeline/mask_stage.h"
 #include "vispack/pipeline/register.h"
+#include "vispack/pipeline/register_stage.h"
 #include "vispack/pipeline/slice_io.h"
 #include "vispack/pipeline/stage_run.h"
 #include "vispack/pipeline/work_layout.h"
-#include "vispack/pipeline/register_stage.h"
-#include "vispack/pipeline/mask_stage.h"
 
 namespace vispack::test {
 namespace {
@@ -129,7 +129,8 @@ TEST(VisibleWomanStages, ShiftsRecoveredAndGelRemoved) {
   for (std::size_t k = 0; k < got.slices.size(); ++k) {
     double dx = truth["slices"][k]["dx_px"], dy = truth["slices"][k]["dy_px"];
     std::printf("visible-woman slice %zu: shift (%.3f, %.3f) px, %.3f deg; truth (%g, %g)\n", k,
-                got.slices[k].rigid.dx_px, got.slices[k].rigid.dy_px, got.slices[k].rigid.rotation_deg, dx, dy);
+                got.slices[k].rigid.dx_px, got.slices[k].rigid.dy_px,
+                got.slices[k].rigid.rotation_deg, dx, dy);
     // docs/GOALS.md asks 0.1 px RMS on the phantom; a pure shift of identical content is easier.
     EXPECT_NEAR(got.slices[k].rigid.dx_px, dx, 0.1) << "slice " << k;
     EXPECT_NEAR(got.slices[k].rigid.dy_px, dy, 0.1) << "slice " << k;

@@ -34,13 +34,15 @@ const char* kExtensions[] = {".png", ".tif", ".jpg", ".bmp"};
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   if (size < kPrefix) return 0;
   bool raw = (data[5] & 1) == 0;
-  std::string path = vispack_fuzz_scratch_dir() + "/slice" + (raw ? ".raw" : kExtensions[data[6] % 4]);
+  std::string path =
+      vispack_fuzz_scratch_dir() + "/slice" + (raw ? ".raw" : kExtensions[data[6] % 4]);
   vispack_fuzz_write(path, data + kPrefix, size - kPrefix);
   try {
     if (raw) {
       RawLayout layout = layout_from(data);
       cv::Mat image = vispack::pipeline::read_slice(path, layout);
-      if (image.cols != layout.width || image.rows != layout.height || image.channels() != layout.channels)
+      if (image.cols != layout.width || image.rows != layout.height ||
+          image.channels() != layout.channels)
         std::abort();  // a silently wrong output is a finding too
     } else {
       cv::Mat image = vispack::pipeline::read_slice(path);
@@ -54,13 +56,15 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
 void vispack_fuzz_write_seeds(const std::string& dir) {
   // Raw seeds: each declared layout with exactly the right number of bytes.
   for (std::uint8_t mode = 0; mode < 8; ++mode) {
-    std::uint8_t prefix[kPrefix] = {15, 9, std::uint8_t(mode & 1), std::uint8_t(mode >> 1 | (mode & 1) << 0), 4, 0, 0, 0};
+    std::uint8_t prefix[kPrefix] = {
+        15, 9, std::uint8_t(mode & 1), std::uint8_t(mode >> 1 | (mode & 1) << 0), 4, 0, 0, 0};
     RawLayout layout = layout_from(prefix);
     std::size_t bytes = layout.header_bytes + std::size_t(layout.width) * layout.height *
                                                   layout.channels * (layout.bits / 8);
     std::vector<std::uint8_t> file(kPrefix + bytes);
     std::copy(prefix, prefix + kPrefix, file.begin());
-    for (std::size_t i = kPrefix; i < file.size(); ++i) file[i] = std::uint8_t(i * 31);
+    for (std::size_t i = kPrefix; i < file.size(); ++i)
+      file[i] = std::uint8_t(i * 31);
     vispack_fuzz_write(dir + "/raw-" + std::to_string(mode) + ".bin", file.data(), file.size());
   }
   // Image seeds: a small RGB and a 16-bit grey image in each container.

@@ -14,14 +14,14 @@
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
 #include "vispack/common/nrrd.h"
-#include "vispack/pipeline/labels.h"
 #include "vispack/phantom/phantom.h"
+#include "vispack/pipeline/labels.h"
+#include "vispack/pipeline/labels_stage.h"
 #include "vispack/pipeline/register.h"
+#include "vispack/pipeline/register_stage.h"
 #include "vispack/pipeline/slice_io.h"
 #include "vispack/pipeline/stage_run.h"
 #include "vispack/pipeline/work_layout.h"
-#include "vispack/pipeline/register_stage.h"
-#include "vispack/pipeline/labels_stage.h"
 
 using namespace vispack;
 using namespace vispack::pipeline;

@@ -22,7 +22,6 @@ namespace vp = vispack::pipeline;
 
 namespace {
 
-
 // A head-like cross-section on the colour grid (pixel centres at integer coordinates).
 struct Section {
   double cx = 0, cy = 0;                    // centre (colour-grid pixels)
@@ -326,7 +325,8 @@ TEST(MaskEdge, CtEdgeIsSubPixel) {
     const auto rows = run_stack(head, {vispack::kPi * head.a0 * head.b0}, model, options, &stack,
                                 "widest section, CT only");
     // An edge 0.15 px off all round costs 2·0.15/r of the IoU (r: the mean radius).
-    EXPECT_GE(rows[0].iou, 1.0 - 2.0 * 0.15 / std::sqrt(rows[0].area / vispack::kPi)) << rows[0].area;
+    EXPECT_GE(rows[0].iou, 1.0 - 2.0 * 0.15 / std::sqrt(rows[0].area / vispack::kPi))
+        << rows[0].area;
     EXPECT_LT(std::abs(rows[0].offset), 0.12) << rows[0].area;
   }
 }

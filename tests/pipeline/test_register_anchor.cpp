@@ -113,9 +113,11 @@ vp::AnchorEstimate anchor_of(const Body& body, const vp::Rigid& t,
 
 }  // namespace
 
-// Accuracy and capture range. Tolerance: 0.35 px at the corners of the 256×192 slice (0.17 CT
-// px; at the body's edge about half that): what one slice's anchor gives here, where the
-// colour → HU polynomial cannot separate fat from bone exactly. The largest case (18 px, 6°)
+// Accuracy and capture range. Tolerance: 0.4 px at the corners of the 256×192 slice (0.2 CT
+// px; at the body's edge about half that): what one slice's anchor gives here (worst of the five
+// cases 0.36 px; 0.35 was the bound before the outline step, which trades a little on this
+// body, whose colour → HU relation the polynomial fits almost exactly, for the rotation of small
+// bodies on the realistic cases, docs/BENCHMARKS.md). The largest case (18 px, 6°)
 // must be captured and refined to the same accuracy.
 struct AnchorCase {
   vp::Rigid t;
@@ -131,8 +133,8 @@ TEST_P(AnchorTest, RecoversTheTransformAgainstCt) {
   EXPECT_GT(a.correlation, 0.8);
   const double e = error_px(a.transform, t, body.size);
   RecordProperty("error_px", std::to_string(e));
-  EXPECT_LT(e, 0.35) << a.transform.rotation_deg << " " << a.transform.dx_px << " "
-                     << a.transform.dy_px;
+  EXPECT_LT(e, 0.4) << a.transform.rotation_deg << " " << a.transform.dx_px << " "
+                    << a.transform.dy_px;
   EXPECT_NEAR(a.radius_px, 0.36 * 256 * 0.6, 20.0);  // radius of gyration of the ellipse body
 }
 

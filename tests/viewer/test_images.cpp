@@ -16,8 +16,8 @@
 #include <memory>
 #include <vector>
 
-#include "body_diff.h"
 #include "../render/synthetic_volume.h"
+#include "body_diff.h"
 #include "test_support.h"
 #include "vispack/format/writer.h"
 #include "vispack/render/reference.h"

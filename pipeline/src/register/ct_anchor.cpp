@@ -23,8 +23,12 @@ constexpr float kHuLow = -1000.f, kHuHigh = 1000.f;  // template clamp
 // Nominal anchor error at confidence 1, working pixels: the best case (measured 0.02–0.04 on the
 // head-CT case); the solve inflates it from the residuals where a stack's anchors are worse.
 constexpr double kSigmaWorkingPx = 0.05;
-constexpr double kOutlineReachPx = 3.0;  // step 5 may move the translation this far (working px)
-constexpr int kFeatures = 10;            // 1, r, g, b, r², g², b², rg, rb, gb
+constexpr double kOutlineReachPx =
+    3.0;  // the outline step may move the translation this far (working px)
+// ... and turn this far: on a body a few working pixels across (the `tiny` preset) the outline
+// alone turned 1–2° away from a good multimodal estimate.
+constexpr double kOutlineTurnDeg = 1.0;
+constexpr int kFeatures = 10;  // 1, r, g, b, r², g², b², rg, rb, gb
 
 // Maps working-grid pixels to full-resolution pixels (pixel centres): x = (x_w + 0.5)/s − 0.5.
 cv::Matx23d work_to_full(double sx, double sy) {
@@ -429,10 +433,13 @@ AnchorEstimate estimate_ct_anchor(const RegisterFrame& frame, const cv::Mat& ct_
     // multimodal result. The body's outline is the one feature both modalities show the same
     // way; the intensity map of step 3 is not exact inside the body (texture the CT does not
     // resolve, tissues of one colour and two densities), which biases the rotation of a small
-    // body by tenths of a degree. Kept when it converges near its start.
+    // body by tenths of a degree. Kept when it converges near its start (kOutlineReachPx,
+    // kOutlineTurnDeg).
     cv::Matx23d outline = m;
     if (ecc(soft_ct, soft_colour, outline, 2 * options.iterations, 1e-7, 3) > 0.0 &&
-        std::hypot(outline(0, 2) - m(0, 2), outline(1, 2) - m(1, 2)) < kOutlineReachPx)
+        std::hypot(outline(0, 2) - m(0, 2), outline(1, 2) - m(1, 2)) < kOutlineReachPx &&
+        std::abs(std::atan2(outline(1, 0), outline(0, 0)) - std::atan2(m(1, 0), m(0, 0))) <
+            kOutlineTurnDeg * kPi / 180.0)
       m = outline;
   }
   est.transform = rigid_from_matrix(to_full(m, sx, sy), c_full);

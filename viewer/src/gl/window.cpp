@@ -184,6 +184,8 @@ int run_window(const ViewOptions& options) {
   std::shared_ptr<const render::VolumeSource> source =
       render::fill_lost_slices(render::open_packed(options.file));
   const std::vector<std::int64_t> lost = source->lost_slices();
+  // A bad script is refused before any window opens (no display needed to say so).
+  const std::vector<Command> script = read_script(options.script);
   GlfwLibrary glfw;
   glfwWindowHint(GLFW_CONTEXT_VERSION_MAJOR, 3);
   glfwWindowHint(GLFW_CONTEXT_VERSION_MINOR, 3);
@@ -234,7 +236,6 @@ int run_window(const ViewOptions& options) {
   float clip_offset = 0.0f;
 #endif
 
-  const std::vector<Command> script = read_script(options.script);
   std::size_t next_command = 0;
   double frame_ms = 0;
   for (int frame = 0; !glfwWindowShouldClose(window); ++frame) {

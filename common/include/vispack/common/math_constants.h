@@ -6,7 +6,11 @@ namespace vispack {
 inline constexpr double kPi = 3.14159265358979323846;
 
 // Degrees <-> radians.
-inline constexpr double radians(double degrees) { return degrees * kPi / 180.0; }
-inline constexpr double degrees(double radians) { return radians * 180.0 / kPi; }
+inline constexpr double radians(double degrees) {
+  return degrees * kPi / 180.0;
+}
+inline constexpr double degrees(double radians) {
+  return radians * 180.0 / kPi;
+}
 
 }  // namespace vispack

@@ -26,19 +26,23 @@ const char* nrrd_type_name(NrrdType type);
 
 struct NrrdVolume {
   NrrdType type = NrrdType::kUint8;
-  int components = 1;                       // 1 (scalar) .. 4 (RGBA)
+  int components = 1;                         // 1 (scalar) .. 4 (RGBA)
   std::array<std::int64_t, 3> dims{0, 0, 0};  // voxels along x, y, z
   std::array<double, 3> spacing_mm{1, 1, 1};
   std::array<double, 3> origin_mm{0, 0, 0};
-  std::vector<std::uint8_t> data;           // dims product * components * type size bytes
+  std::vector<std::uint8_t> data;  // dims product * components * type size bytes
 
   std::size_t voxel_count() const { return std::size_t(dims[0]) * dims[1] * dims[2]; }
   std::size_t byte_size() const { return voxel_count() * components * nrrd_type_size(type); }
   // Typed access to the data (no checks: the caller knows the type).
   template <class T>
-  T* as() { return reinterpret_cast<T*>(data.data()); }
+  T* as() {
+    return reinterpret_cast<T*>(data.data());
+  }
   template <class T>
-  const T* as() const { return reinterpret_cast<const T*>(data.data()); }
+  const T* as() const {
+    return reinterpret_cast<const T*>(data.data());
+  }
 };
 
 // Writes a single-file NRRD (attached header, raw little-endian data) atomically.

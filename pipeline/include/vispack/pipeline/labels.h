@@ -20,11 +20,11 @@
 //
 // The seg slices lie on the observed (drifted) grid of their colour slice. They are resampled
 // onto the output grid with that slice's registration transform (work/register/transforms.json,
-// transforms.h) by NEAREST neighbour only: label(q) = seg(round(p(q))), so two IDs are never blended.
-// Output: work/labels/labels_NNNN.png (16-bit grey IDs) + report.json (counts of exact, nearest
-// and unmatched pixels, first unmatched positions, IDs present, missing seg slices).
-// Seg slices are matched to colour slices by the number in the file name; a colour slice with no
-// seg slice gets an all-zero label slice and is listed in the report under "missing_seg".
+// transforms.h) by NEAREST neighbour only: label(q) = seg(round(p(q))), so two IDs are never
+// blended. Output: work/labels/labels_NNNN.png (16-bit grey IDs) + report.json (counts of exact,
+// nearest and unmatched pixels, first unmatched positions, IDs present, missing seg slices). Seg
+// slices are matched to colour slices by the number in the file name; a colour slice with no seg
+// slice gets an all-zero label slice and is listed in the report under "missing_seg".
 //
 // Thread-safety: ColourMatcher is immutable after construction and may be shared by threads;
 // the other functions here are pure. The stage is in labels_stage.h.

@@ -1,12 +1,13 @@
 // Body and gel outlines shared by registration (register.h) and the body mask (mask.h).
 //
 // The body outline of a slice comes from either image:
-//   - CT (ct_body_mask, at CT resolution): HU > threshold; an opening of radius kCtDetachPx CT
-//     pixels detaches what merely touches the body (head-holder, table: structures thinner than
-//     about 2·kCtDetachPx), the largest connected component is the body, then the threshold is
-//     restricted to that component grown by kCtDetachPx + 1 (restores the body's own edge; a
-//     holder separated from the body by more than that, touching it only through thin bridges,
-//     stays out); holes filled (lungs).
+//   - CT (ct_body_mask, at CT resolution): HU > threshold with its holes filled (a cavity near
+//     the edge of a small body leaves a band of tissue thinner than the opening); an opening of
+//     radius kCtDetachPx CT pixels detaches what merely touches the body (head-holder, table:
+//     structures thinner than about 2·kCtDetachPx), the largest connected component is the body,
+//     then the threshold is restricted to that component grown by kCtDetachPx + 1 (restores the
+//     body's own edge; a holder separated from the body by more than that, touching it only through
+//     thin bridges, stays out); holes filled (lungs).
 //   - colour (colour_body_mask): pixels farther than a colour distance from the gel colour
 //     (estimate_gel_colour: the median of the slice's border frame), an opening, the largest
 //     component, holes filled.

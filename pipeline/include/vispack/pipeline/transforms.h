@@ -103,11 +103,11 @@ struct SliceTransform {
 };
 
 struct StackTransforms {
-  int width = 0, height = 0;              // output (and observed RGB) grid, pixels
-  std::array<double, 2> center_px{0, 0};  // ((W-1)/2, (H-1)/2)
-  std::optional<int> reference_slice;     // the slice defining the output frame, if any
-  std::vector<SliceTransform> slices;     // one per stack index, in order
-  std::optional<Similarity> ct_to_rgb;    // CT pixel u -> output q (above)
+  int width = 0, height = 0;                        // output (and observed RGB) grid, pixels
+  std::array<double, 2> center_px{0, 0};            // ((W-1)/2, (H-1)/2)
+  std::optional<int> reference_slice;               // the slice defining the output frame, if any
+  std::vector<SliceTransform> slices;               // one per stack index, in order
+  std::optional<Similarity> ct_to_rgb;              // CT pixel u -> output q (above)
   nlohmann::json extra = nlohmann::json::object();  // unknown keys, kept on write
 
   cv::Point2d centre() const { return {center_px[0], center_px[1]}; }

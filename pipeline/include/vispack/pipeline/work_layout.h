@@ -46,10 +46,10 @@ Fingerprint intermediates_fingerprint(const Config& config, int slice_count);
 
 // One output slice's intermediates, as the mask and labels stages wrote them, on the output grid.
 struct Intermediates {
-  cv::Mat rgb;     // CV_8UC3, the registered colour slice
-  cv::Mat mask;    // CV_8UC1, 0/255 body mask
-  cv::Mat ct;      // CV_16UC1, HU + 32768 (empty without CT)
-  cv::Mat labels;  // CV_16UC1, label IDs (empty without segmentation)
+  cv::Mat rgb;              // CV_8UC3, the registered colour slice
+  cv::Mat mask;             // CV_8UC1, 0/255 body mask
+  cv::Mat ct;               // CV_16UC1, HU + 32768 (empty without CT)
+  cv::Mat labels;           // CV_16UC1, label IDs (empty without segmentation)
   std::uint64_t bytes = 0;  // decoded bytes read (for throughput reports)
 };
 

@@ -26,7 +26,7 @@
 //      and CT; the polynomial is refitted and ECC repeated (half working resolution, then full).
 //   4. Outline refinement: ECC of the two soft body masks (each cut to its largest component,
 //      so fiducial tubes in the gel take no part) at full working resolution, from step 3's
-//      result; kept when it converges within a few pixels of it. The outline is what both
+//      result; kept when it converges within a few pixels and 1° of it. The outline is what both
 //      modalities show alike; the intensity map of step 3 is not exact inside the body, which
 //      biased a small body's rotation by tenths of a degree (docs/BENCHMARKS.md, issue #11).
 //   5. lever_px: how well the template pins rotation (below); correlation = the final ECC

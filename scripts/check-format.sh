@@ -1,0 +1,35 @@
+#!/usr/bin/env bash
+# Checks that every C++ source and header of the project is formatted with the project's
+# .clang-format (clang-format from Debian, scripts/install-deps.sh). Lists the files that are not
+# and exits 1; --fix formats them in place instead.
+# Usage: scripts/check-format.sh [--fix]
+set -euo pipefail
+root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+cd "$root"
+fix=0
+case "${1:-}" in
+  --fix) fix=1 ;;
+  "") ;;
+  -h|--help) sed -n '2,5p' "$0"; exit 0 ;;
+  *) echo "check-format: unknown option $1" >&2; exit 2 ;;
+esac
+command -v clang-format >/dev/null || { echo "check-format: clang-format not found (scripts/install-deps.sh installs it)" >&2; exit 1; }
+# The project's own sources: every folder but build outputs and fetched data.
+mapfile -t files < <(find common format pipeline phantom viewer tests \
+  \( -name '*.cpp' -o -name '*.h' \) -type f | sort)
+if [[ $fix == 1 ]]; then
+  clang-format -i "${files[@]}"
+  echo "check-format: formatted ${#files[@]} files"
+  exit 0
+fi
+bad=()
+for f in "${files[@]}"; do
+  clang-format --dry-run --Werror "$f" >/dev/null 2>&1 || bad+=("$f")
+done
+if (( ${#bad[@]} )); then
+  echo "check-format: ${#bad[@]} of ${#files[@]} files are not formatted (.clang-format):" >&2
+  printf '  %s\n' "${bad[@]}" >&2
+  echo "check-format: run scripts/check-format.sh --fix" >&2
+  exit 1
+fi
+echo "check-format: ${#files[@]} files formatted"
