@@ -1,25 +1,29 @@
 #!/usr/bin/env bash
 # Regenerates the benchmark report: builds Release, generates the phantom inputs, runs every
 # benchmark with its peers in the same run, and writes docs/BENCHMARKS.md and docs/img/*.png.
-# Usage: scripts/bench.sh [--quick] [--no-report] [--build DIR] [--no-build]
+# Usage: scripts/bench.sh [--quick] [--no-report] [--build DIR] [--no-build] [--require-clean]
 #   --quick      a reduced set (tiny phantom, one repetition, no profile) in under 3 minutes
 #   --no-report  measure only; docs/ is not touched (scripts/test.sh runs --quick --no-report)
 #   --build DIR  build folder (default build/, or $VISPACK_BENCH_BUILD)
 #   --no-build   use the executables already in DIR/bin (skip scripts/build.sh)
+#   --require-clean  refuse to run from a tree that differs from its commit (git status: modified,
+#                staged or untracked files, the report's own outputs left out); without it a dirty
+#                tree is recorded and the report is marked "DIRTY TREE" at the top
 # Environment: VISPACK_BENCH_VHP_SLICES (default "2 4 8"): slice counts of the vhp-size scaling
 # runs; VISPACK_BENCH_MEDIUM=0 skips the medium phantom in the scaling runs;
 # VISPACK_BENCH_MEM_SLICES (default "64 128 256"): slice counts of the per-stage memory runs.
 # Results (JSON, logs) go to BUILD/bench/results; any failing benchmark makes the script exit 1.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
-quick=0 report=1 do_build=1 build=${VISPACK_BENCH_BUILD:-$root/build}
+quick=0 report=1 do_build=1 require_clean=0 build=${VISPACK_BENCH_BUILD:-$root/build}
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --quick) quick=1 ;;
     --no-report) report=0 ;;
     --no-build) do_build=0 ;;
     --build) build=$(realpath -m "$2"); shift ;;
-    -h|--help) sed -n '2,12p' "$0"; exit 0 ;;
+    --require-clean) require_clean=1 ;;
+    -h|--help) sed -n '2,15p' "$0"; exit 0 ;;
     *) echo "bench.sh: unknown option $1" >&2; exit 2 ;;
   esac
   shift
@@ -57,8 +61,16 @@ rm -rf "$res"
 mkdir -p "$res" "$work/data"
 export VISPACK_BENCH_MODE=$mode VISPACK_BENCH_RESULTS=$res VISPACK_BENCH_BIN=$bin VISPACK_BENCH_WORK=$work
 
-# Machine and date, for the report header.
+# Machine, date and provenance (commit, dirty flag), for the report header.
 "$py" "$root/scripts/bench/machine.py" >"$res/machine.json"
+read -r commit dirty ndirty < <("$py" -c 'import json, sys; m = json.load(open(sys.argv[1]))
+print(m["commit"], int(m["dirty"]), len(m["dirty_paths"]))' "$res/machine.json")
+if [[ $dirty == 1 ]]; then
+  [[ $require_clean == 1 ]] && fail "--require-clean: the tree differs from commit $commit in $ndirty path(s) (git status)"
+  stamp "DIRTY TREE: numbers not reproducible from commit $commit (the report will say so)"
+else
+  stamp "Commit $commit, clean tree"
+fi
 
 # A phantom folder, generated once per build folder (the same options give the same bytes).
 phantom() {  # phantom NAME PRESET [SLICES [EXTRA FLAGS...]]
