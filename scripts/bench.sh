@@ -162,9 +162,10 @@ for n in $mem_list; do mem_dirs+=("$(phantom "mem-$mem_preset-$n" "$mem_preset" 
 "$py" "$root/scripts/bench/stage_memory.py" "$res/stage_memory.json" "${mem_dirs[@]}" 2>"$res/stage_memory.log" ||
   { cat "$res/stage_memory.log"; fail "stage memory runs failed"; }
 
-if [[ $quick == 0 && -x $bin/format_bench ]]; then
-  stamp "Format details: format_bench (read throughput, random brick decode, writer memory)"
-  "$bin/format_bench" --size 128 --sweep-size 64 --dir "$work/format-bench" >"$res/format_bench.md" 2>"$res/format_bench.log" ||
+if [[ -x $bin/format_bench ]]; then
+  stamp "Format details: format_bench against libzstd in-process, interleaved (throughput, brick decode, writer memory)"
+  if [[ $quick == 1 ]]; then fb_args=(--size 32 --sweep-size 32 --reps 1); else fb_args=(--size 128 --sweep-size 64 --reps 5); fi
+  "$bin/format_bench" "${fb_args[@]}" --dir "$work/format-bench" >"$res/format_bench.md" 2>"$res/format_bench.log" ||
     { cat "$res/format_bench.log"; fail "format_bench failed"; }
 fi
 
