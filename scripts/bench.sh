@@ -97,13 +97,11 @@ else
   reg_pairs=5 reps=3 mask_slices=8 view_size=128 view_spv=0.5,1,2
 fi
 
-stamp "Registration: vispack methods, then elastix on the same pairs"
+stamp "Registration: vispack methods and elastix on the same pairs, interleaved round by round"
 rm -rf "$work/reg-dump" && mkdir -p "$work/reg-dump"
-"$bin/register_bench" --phantom "$reg_phantom" --pairs $reg_pairs --reps $reps \
-  --json "$res/register.json" --dump "$work/reg-dump" 2>"$res/register.log" ||
-  { cat "$res/register.log"; fail "register_bench failed"; }
-"$py" "$root/scripts/bench/elastix_peer.py" "$res/register.json" "$work/reg-dump" "$res/register_elastix.json" ||
-  fail "elastix peer failed"
+"$py" "$root/scripts/bench/register_peers.py" "$bin/register_bench" "$reg_phantom" $reg_pairs $reps \
+  "$work/reg-dump" "$res/register.json" "$res/register_elastix.json" 2>"$res/register.log" ||
+  { cat "$res/register.log"; fail "registration benchmark (register_bench, elastix) failed"; }
 
 stamp "Mask: CT mask against the colour-threshold baseline"
 "$bin/mask_bench" --slices $mask_slices --reps $reps --json "$res/mask.json" >"$res/mask.log" 2>&1 ||
@@ -138,6 +136,9 @@ else
   [[ ${VISPACK_BENCH_MEDIUM:-1} == 1 ]] && scale_list+=" medium:medium:"
   for n in ${VISPACK_BENCH_VHP_SLICES:-2 4 8}; do scale_list+=" vhp-$n:vhp:$n"; done
 fi
+# Process start-up, measured apart (vispack-run --help: loads every library, does no work), so
+# that the scaling fit can leave it out.
+"$py" "$root/scripts/bench/startup.py" "$res/startup.json" 5 || fail "start-up timing failed"
 : >"$res/scaling.tsv"
 for item in $scale_list; do
   IFS=: read -r name preset slices <<<"$item"
