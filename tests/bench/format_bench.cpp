@@ -25,8 +25,10 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <exception>
 #include <filesystem>
 #include <fstream>
+#include <mutex>
 #include <random>
 #include <string>
 #include <thread>
@@ -132,13 +134,26 @@ void pack(const std::string& path, const Synthetic& s, const WriterOptions& o) {
 struct ZstdPeer {
   std::vector<std::vector<std::uint8_t>> bricks, packed;
   std::vector<bool> level0;
+  ZSTD_DCtx* latency_dctx = ZSTD_createDCtx();  // for decompress_one (one brick at a time)
 
-  template <class F>
-  static void parallel(std::size_t n, int threads, F&& body) {
+  // Runs body(i, ctx) for every i in [0, n) on `threads` threads; each thread makes its own zstd
+  // context with make() and frees it with release() afterwards, as the writer's workers do.
+  template <class Make, class Release, class F>
+  static void parallel(std::size_t n, int threads, Make make, Release release, F body) {
     std::atomic<std::size_t> next{0};
+    std::exception_ptr failed;
+    std::mutex failed_mutex;
     auto work = [&] {
-      for (std::size_t i; (i = next++) < n;)
-        body(i);
+      auto* ctx = make();
+      try {
+        for (std::size_t i; (i = next++) < n;)
+          body(i, ctx);
+      } catch (...) {
+        std::lock_guard<std::mutex> lock(failed_mutex);
+        if (!failed) failed = std::current_exception();
+        next = n;
+      }
+      release(ctx);
     };
     std::vector<std::thread> pool;
     for (int t = 1; t < threads; ++t)
@@ -146,6 +161,7 @@ struct ZstdPeer {
     work();
     for (std::thread& t : pool)
       t.join();
+    if (failed) std::rethrow_exception(failed);
   }
 
   explicit ZstdPeer(const Reader& r) {
@@ -156,38 +172,48 @@ struct ZstdPeer {
     }
     packed.resize(bricks.size());
   }
+  ZstdPeer(const ZstdPeer&) = delete;
+  ZstdPeer& operator=(const ZstdPeer&) = delete;
+  ~ZstdPeer() { ZSTD_freeDCtx(latency_dctx); }
 
   // Returns the compressed bytes of the level-0 bricks.
   std::uint64_t compress(int level, int threads) {
-    parallel(bricks.size(), threads, [&, level](std::size_t i) {
-      thread_local ZSTD_CCtx* cctx = ZSTD_createCCtx();  // one per thread, as the writer's
-      packed[i].resize(ZSTD_compressBound(bricks[i].size()));
-      std::size_t n = ZSTD_compressCCtx(cctx, packed[i].data(), packed[i].size(), bricks[i].data(),
-                                        bricks[i].size(), level);
-      if (ZSTD_isError(n)) throw Error(cat("ZSTD_compressCCtx: ", ZSTD_getErrorName(n)));
-      packed[i].resize(n);
-    });
+    parallel(
+        bricks.size(), threads, [] { return ZSTD_createCCtx(); },
+        [](ZSTD_CCtx* c) { ZSTD_freeCCtx(c); },
+        [&, level](std::size_t i, ZSTD_CCtx* cctx) {
+          packed[i].resize(ZSTD_compressBound(bricks[i].size()));
+          std::size_t n = ZSTD_compressCCtx(cctx, packed[i].data(), packed[i].size(),
+                                            bricks[i].data(), bricks[i].size(), level);
+          if (ZSTD_isError(n)) throw Error(cat("ZSTD_compressCCtx: ", ZSTD_getErrorName(n)));
+          packed[i].resize(n);
+        });
     std::uint64_t bytes = 0;
     for (std::size_t i = 0; i < packed.size(); ++i)
       if (level0[i]) bytes += packed[i].size();
     return bytes;
   }
 
-  void decompress_one(std::size_t i, std::uint8_t* out) const {
-    thread_local ZSTD_DCtx* dctx = ZSTD_createDCtx();
+  void decompress_one(std::size_t i, std::uint8_t* out, ZSTD_DCtx* dctx) const {
     std::size_t n =
         ZSTD_decompressDCtx(dctx, out, bricks[i].size(), packed[i].data(), packed[i].size());
     if (ZSTD_isError(n) || n != bricks[i].size()) throw Error("ZSTD_decompressDCtx failed");
+  }
+  void decompress_one(std::size_t i, std::uint8_t* out) const {
+    decompress_one(i, out, latency_dctx);
   }
 
   // Decodes every level-0 brick into its own buffer (no assembly into a dense volume).
   void decompress(int threads, std::vector<std::vector<std::uint8_t>>& out) const {
     out.resize(bricks.size());
-    parallel(bricks.size(), threads, [&](std::size_t i) {
-      if (!level0[i]) return;
-      out[i].resize(bricks[i].size());
-      decompress_one(i, out[i].data());
-    });
+    parallel(
+        bricks.size(), threads, [] { return ZSTD_createDCtx(); },
+        [](ZSTD_DCtx* d) { ZSTD_freeDCtx(d); },
+        [&](std::size_t i, ZSTD_DCtx* dctx) {
+          if (!level0[i]) return;
+          out[i].resize(bricks[i].size());
+          decompress_one(i, out[i].data(), dctx);
+        });
   }
 };
 
