@@ -1,25 +1,29 @@
 #!/usr/bin/env bash
 # Regenerates the benchmark report: builds Release, generates the phantom inputs, runs every
 # benchmark with its peers in the same run, and writes docs/BENCHMARKS.md and docs/img/*.png.
-# Usage: scripts/bench.sh [--quick] [--no-report] [--build DIR] [--no-build]
+# Usage: scripts/bench.sh [--quick] [--no-report] [--build DIR] [--no-build] [--require-clean]
 #   --quick      a reduced set (tiny phantom, one repetition, no profile) in under 3 minutes
 #   --no-report  measure only; docs/ is not touched (scripts/test.sh runs --quick --no-report)
 #   --build DIR  build folder (default build/, or $VISPACK_BENCH_BUILD)
 #   --no-build   use the executables already in DIR/bin (skip scripts/build.sh)
+#   --require-clean  refuse to run from a tree that differs from its commit (git status: modified,
+#                staged or untracked files, the report's own outputs left out); without it a dirty
+#                tree is recorded and the report is marked "DIRTY TREE" at the top
 # Environment: VISPACK_BENCH_VHP_SLICES (default "2 4 8"): slice counts of the vhp-size scaling
 # runs; VISPACK_BENCH_MEDIUM=0 skips the medium phantom in the scaling runs;
 # VISPACK_BENCH_MEM_SLICES (default "64 128 256"): slice counts of the per-stage memory runs.
 # Results (JSON, logs) go to BUILD/bench/results; any failing benchmark makes the script exit 1.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
-quick=0 report=1 do_build=1 build=${VISPACK_BENCH_BUILD:-$root/build}
+quick=0 report=1 do_build=1 require_clean=0 build=${VISPACK_BENCH_BUILD:-$root/build}
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --quick) quick=1 ;;
     --no-report) report=0 ;;
     --no-build) do_build=0 ;;
     --build) build=$(realpath -m "$2"); shift ;;
-    -h|--help) sed -n '2,12p' "$0"; exit 0 ;;
+    --require-clean) require_clean=1 ;;
+    -h|--help) sed -n '2,15p' "$0"; exit 0 ;;
     *) echo "bench.sh: unknown option $1" >&2; exit 2 ;;
   esac
   shift
@@ -57,8 +61,16 @@ rm -rf "$res"
 mkdir -p "$res" "$work/data"
 export VISPACK_BENCH_MODE=$mode VISPACK_BENCH_RESULTS=$res VISPACK_BENCH_BIN=$bin VISPACK_BENCH_WORK=$work
 
-# Machine and date, for the report header.
+# Machine, date and provenance (commit, dirty flag), for the report header.
 "$py" "$root/scripts/bench/machine.py" >"$res/machine.json"
+read -r commit dirty ndirty < <("$py" -c 'import json, sys; m = json.load(open(sys.argv[1]))
+print(m["commit"], int(m["dirty"]), len(m["dirty_paths"]))' "$res/machine.json")
+if [[ $dirty == 1 ]]; then
+  [[ $require_clean == 1 ]] && fail "--require-clean: the tree differs from commit $commit in $ndirty path(s) (git status)"
+  stamp "DIRTY TREE: numbers not reproducible from commit $commit (the report will say so)"
+else
+  stamp "Commit $commit, clean tree"
+fi
 
 # A phantom folder, generated once per build folder (the same options give the same bytes).
 phantom() {  # phantom NAME PRESET [SLICES [EXTRA FLAGS...]]
@@ -85,13 +97,11 @@ else
   reg_pairs=5 reps=3 mask_slices=8 view_size=128 view_spv=0.5,1,2
 fi
 
-stamp "Registration: vispack methods, then elastix on the same pairs"
+stamp "Registration: vispack methods and elastix on the same pairs, interleaved round by round"
 rm -rf "$work/reg-dump" && mkdir -p "$work/reg-dump"
-"$bin/register_bench" --phantom "$reg_phantom" --pairs $reg_pairs --reps $reps \
-  --json "$res/register.json" --dump "$work/reg-dump" 2>"$res/register.log" ||
-  { cat "$res/register.log"; fail "register_bench failed"; }
-"$py" "$root/scripts/bench/elastix_peer.py" "$res/register.json" "$work/reg-dump" "$res/register_elastix.json" ||
-  fail "elastix peer failed"
+"$py" "$root/scripts/bench/register_peers.py" "$bin/register_bench" "$reg_phantom" $reg_pairs $reps \
+  "$work/reg-dump" "$res/register.json" "$res/register_elastix.json" 2>"$res/register.log" ||
+  { cat "$res/register.log"; fail "registration benchmark (register_bench, elastix) failed"; }
 
 stamp "Mask: CT mask against the colour-threshold baseline"
 "$bin/mask_bench" --slices $mask_slices --reps $reps --json "$res/mask.json" >"$res/mask.log" 2>&1 ||
@@ -126,6 +136,9 @@ else
   [[ ${VISPACK_BENCH_MEDIUM:-1} == 1 ]] && scale_list+=" medium:medium:"
   for n in ${VISPACK_BENCH_VHP_SLICES:-2 4 8}; do scale_list+=" vhp-$n:vhp:$n"; done
 fi
+# Process start-up, measured apart (vispack-run --help: loads every library, does no work), so
+# that the scaling fit can leave it out.
+"$py" "$root/scripts/bench/startup.py" "$res/startup.json" 5 || fail "start-up timing failed"
 : >"$res/scaling.tsv"
 for item in $scale_list; do
   IFS=: read -r name preset slices <<<"$item"
@@ -150,9 +163,10 @@ for n in $mem_list; do mem_dirs+=("$(phantom "mem-$mem_preset-$n" "$mem_preset" 
 "$py" "$root/scripts/bench/stage_memory.py" "$res/stage_memory.json" "${mem_dirs[@]}" 2>"$res/stage_memory.log" ||
   { cat "$res/stage_memory.log"; fail "stage memory runs failed"; }
 
-if [[ $quick == 0 && -x $bin/format_bench ]]; then
-  stamp "Format details: format_bench (read throughput, random brick decode, writer memory)"
-  "$bin/format_bench" --size 128 --sweep-size 64 --dir "$work/format-bench" >"$res/format_bench.md" 2>"$res/format_bench.log" ||
+if [[ -x $bin/format_bench ]]; then
+  stamp "Format details: format_bench against libzstd in-process, interleaved (throughput, brick decode, writer memory)"
+  if [[ $quick == 1 ]]; then fb_args=(--size 32 --sweep-size 32 --reps 1); else fb_args=(--size 128 --sweep-size 64 --reps 5); fi
+  "$bin/format_bench" "${fb_args[@]}" --dir "$work/format-bench" >"$res/format_bench.md" 2>"$res/format_bench.log" ||
     { cat "$res/format_bench.log"; fail "format_bench failed"; }
 fi
 

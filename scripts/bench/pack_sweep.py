@@ -1,13 +1,14 @@
 #!/usr/bin/python3
 """Pack stage sweep (brick edge x zstd level) on a phantom whose pipeline has run, beside plain
-`zstd -T2` of the same raw voxels, the OpenVDB export and gzip-compressed NRRDs.
+`zstd -T2` of the same raw voxels, vispack's own OpenVDB export and gzip-compressed NRRDs, all
+run round-robin (every setting and peer once per repetition), medians.
 Usage: pack_sweep.py PHANTOM_DIR OUT_JSON"""
 import json
 import os
 import subprocess
 import sys
 
-from common import QUICK, median, timed, timed2, write_json
+from common import QUICK, median, timed2, write_json
 
 BIN = os.environ["VISPACK_BENCH_BIN"]
 WORK = os.environ["VISPACK_BENCH_WORK"]
@@ -48,29 +49,15 @@ def main():
     reps = 1 if QUICK else 3
     edges = [32, 64] if QUICK else [32, 64, 128]
     levels = [1, 3] if QUICK else [1, 3, 9, 19]
-    rows = []
-    for edge in edges:
-        for level in levels:
-            name = f"e{edge}_z{level}"
-            cfg_path, cfg = absolute_config(phantom, {"brick_edge": edge, "zstd_level": level,
-                                                      "threads": 2}, sweep, name)
-            tc = [timed2([f"{BIN}/vispack-pack", "--config", cfg_path, "--force", "--quiet",
-                          "--threads", "2"], stdout=subprocess.DEVNULL) for _ in range(reps)]
-            times = [t for t, _ in tc]
-            rows.append({"brick_edge": edge, "zstd_level": level, "seconds": median(times),
-                         "cpu_seconds": median([c for _, c in tc]),
-                         "times": times, "bytes": os.path.getsize(cfg["output"])})
-            print(f"pack {name}: {median(times):.2f} s, {rows[-1]['bytes'] / 1e6:.2f} MB", file=sys.stderr)
-    # The default setting's file is the reference volume for the peers.
+    # Set-up, untimed: the default setting's file is the reference volume for the peers; its
+    # level-0 raw voxels as vispack-extract writes them (rgba8, int16 HU, labels), one payload
+    # file per channel for gzip and all three concatenated for zstd.
     cfg_path, cfg = absolute_config(phantom, {"threads": 2}, sweep, "default")
     subprocess.run([f"{BIN}/vispack-pack", "--config", cfg_path, "--force", "--quiet"], check=True,
                    stdout=subprocess.DEVNULL)
     vpk = cfg["output"]
-    # Raw level-0 voxels, as vispack-extract writes them (rgba8, int16 HU, labels).
     raw_path = os.path.join(sweep, "level0.raw")
-    raw_bytes = 0
-    gz = {"bytes": 0, "seconds": 0.0}
-    channels = {}
+    channels, headers = {}, {}
     with open(raw_path, "wb") as raw:
         for ch in ("rgba", "ct", "labels"):
             nrrd = os.path.join(sweep, ch + ".nrrd")
@@ -78,45 +65,74 @@ def main():
                            stdout=subprocess.DEVNULL)
             header, payload = nrrd_split(nrrd)
             raw.write(payload)
-            raw_bytes += len(payload)
             channels[ch] = len(payload)
-            # gzip-compressed NRRD: the same header with "encoding: gzip" and the payload gzipped
-            # (gzip -6, what NRRD writers such as ITK and pynrrd use by default).
-            payload_path = os.path.join(sweep, ch + ".payload")
-            open(payload_path, "wb").write(payload)
-            gz_times, gz_cpu = [], []
-            for _ in range(reps):
-                t, c = timed2(["sh", "-c", f"gzip -6 -c '{payload_path}' > '{payload_path}.gz'"])
-                gz_times.append(t)
-                gz_cpu.append(c)
-            header = header.replace(b"encoding: raw", b"encoding: gzip")
-            gz_file = os.path.join(sweep, ch + ".gz.nrrd")
-            with open(gz_file, "wb") as f:
-                f.write(header)
-                f.write(open(payload_path + ".gz", "rb").read())
-            gz["bytes"] += os.path.getsize(gz_file)
-            gz["seconds"] += median(gz_times)
-            gz["cpu_seconds"] = gz.get("cpu_seconds", 0.0) + median(gz_cpu)
-            os.remove(payload_path)
-            os.remove(payload_path + ".gz")
-    zstd_rows = []
+            headers[ch] = header
+            open(os.path.join(sweep, ch + ".payload"), "wb").write(payload)
+    raw_bytes = sum(channels.values())
+    # Every measured command, run round-robin: each repetition runs every vispack setting and
+    # every peer once (A B C ... A B C ...), so all see the same machine load; medians over the
+    # repetitions.
+    runs = {}
+    for edge in edges:
+        for level in levels:
+            path, _ = absolute_config(phantom, {"brick_edge": edge, "zstd_level": level,
+                                                "threads": 2}, sweep, f"e{edge}_z{level}")
+            runs[("pack", edge, level)] = [f"{BIN}/vispack-pack", "--config", path, "--force",
+                                           "--quiet", "--threads", "2"]
     for level in levels:
-        tc = [timed2(["zstd", f"-{level}", "-T2", "-q", "-f", raw_path, "-o", raw_path + ".zst"])
-              for _ in range(reps)]
-        times = [t for t, _ in tc]
-        zstd_rows.append({"zstd_level": level, "seconds": median(times), "times": times,
-                          "cpu_seconds": median([c for _, c in tc]),
-                          "bytes": os.path.getsize(raw_path + ".zst")})
+        runs[("zstd", level)] = ["zstd", f"-{level}", "-T2", "-q", "-f", raw_path, "-o",
+                                 raw_path + ".zst"]
+    # gzip-compressed NRRD: the same header with "encoding: gzip" and the payload gzipped
+    # (gzip -6, what NRRD writers such as ITK and pynrrd use by default); one command per channel.
+    for ch in channels:
+        pl = os.path.join(sweep, ch + ".payload")
+        runs[("gzip", ch)] = ["sh", "-c", f"gzip -6 -c '{pl}' > '{pl}.gz'"]
+    vdb_cfg, vcfg = absolute_config(phantom, {}, sweep, "default")
+    runs[("vdb",)] = [f"{BIN}/vispack-vdb", "--config", vdb_cfg, "--force", "--quiet", "--threads", "2"]
+    timing = {k: [] for k in runs}
+    sizes = {}
+    for _ in range(reps):
+        for key, cmd in runs.items():
+            timing[key].append(timed2(cmd, stdout=subprocess.DEVNULL))
+            if key[0] == "zstd":
+                sizes[key] = os.path.getsize(raw_path + ".zst")
+            elif key[0] == "pack":
+                sizes[key] = os.path.getsize(os.path.join(sweep, f"e{key[1]}_z{key[2]}.vpk"))
+
+    def wall(key):
+        return [t for t, _ in timing[key]]
+
+    def cpu(key):
+        return median([c for _, c in timing[key]])
+
+    rows = []
+    for edge in edges:
+        for level in levels:
+            k = ("pack", edge, level)
+            rows.append({"brick_edge": edge, "zstd_level": level, "seconds": median(wall(k)),
+                         "cpu_seconds": cpu(k), "times": wall(k), "bytes": sizes[k]})
+            print(f"pack e{edge}_z{level}: {median(wall(k)):.2f} s, {sizes[k] / 1e6:.2f} MB", file=sys.stderr)
+    zstd_rows = [{"zstd_level": level, "seconds": median(wall(("zstd", level))), "times": wall(("zstd", level)),
+                  "cpu_seconds": cpu(("zstd", level)), "bytes": sizes[("zstd", level)]} for level in levels]
+    gz = {"bytes": 0, "seconds": 0.0, "cpu_seconds": 0.0}
+    for ch in channels:
+        pl = os.path.join(sweep, ch + ".payload")
+        gz_file = os.path.join(sweep, ch + ".gz.nrrd")
+        with open(gz_file, "wb") as f:
+            f.write(headers[ch].replace(b"encoding: raw", b"encoding: gzip"))
+            f.write(open(pl + ".gz", "rb").read())
+        gz["bytes"] += os.path.getsize(gz_file)
+        gz["seconds"] += median(wall(("gzip", ch)))
+        gz["cpu_seconds"] += cpu(("gzip", ch))
+        os.remove(pl)
+        os.remove(pl + ".gz")
     os.remove(raw_path + ".zst")
-    vdb_cfg, cfg = absolute_config(phantom, {}, sweep, "default")
-    tc = [timed2([f"{BIN}/vispack-vdb", "--config", vdb_cfg, "--force", "--quiet", "--threads", "2"],
-                 stdout=subprocess.DEVNULL) for _ in range(reps)]
-    vdb = {"seconds": median([t for t, _ in tc]), "cpu_seconds": median([c for _, c in tc]),
-           "bytes": os.path.getsize(cfg["vdb_output"])}
+    vdb = {"seconds": median(wall(("vdb",))), "cpu_seconds": cpu(("vdb",)),
+           "bytes": os.path.getsize(vcfg["vdb_output"])}
     info = json.load(open(os.path.join(phantom, "truth", "transforms.json")))
     write_json(out, {"phantom": os.path.basename(os.path.abspath(phantom)), "preset": info.get("preset"),
                      "raw_bytes": raw_bytes, "channels": channels, "reps": reps, "rows": rows,
-                     "zstd": zstd_rows, "gzip_nrrd": gz, "vdb": vdb,
+                     "zstd": zstd_rows, "gzip_nrrd": gz, "vdb": vdb, "interleaved": True,
                      "default_bytes": os.path.getsize(vpk)})
     os.remove(raw_path)
 

@@ -4,7 +4,8 @@
 //   build/bin/mask_bench [--slices N] [--ct-scale S] [--json OUT]
 // --ct-scale: output pixels per CT pixel (default 4, a 512×512 CT; 2: the CT 2× coarser).
 // --json also writes the rows (median of --reps R runs, default 1) for scripts/bench.sh, with a
-// third method (CT mask without the gel refinement) for the speed/accuracy curve.
+// third method (CT mask without the gel refinement) for the speed/accuracy curve. The methods are
+// interleaved: each repetition runs every method once.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -67,12 +68,18 @@ int main(int argc, char** argv) {
   std::printf("|---|---|---|---|---|\n");
   for (int threads : {1, 2}) {
     cv::setNumThreads(1);
-    for (int method = 0; method < (json_out.empty() ? 2 : 3); ++method) {
-      std::vector<cv::Mat> out(static_cast<std::size_t>(slices));
-      vp::MaskOptions mo = options;
-      mo.refine_gel = method != 2;
-      std::vector<double> times, cpu;
-      for (int r = 0; r < reps; ++r) {
+    const int methods = json_out.empty() ? 2 : 3;
+    // Interleaved: every repetition runs every method once (baseline, CT mask, ...), so the
+    // baseline and vispack see the same load; medians over the repetitions.
+    std::vector<std::vector<cv::Mat>> outs(static_cast<std::size_t>(methods),
+                                           std::vector<cv::Mat>(static_cast<std::size_t>(slices)));
+    std::vector<std::vector<double>> all_times(static_cast<std::size_t>(methods)),
+        all_cpu(static_cast<std::size_t>(methods));
+    for (int r = 0; r < reps; ++r) {
+      for (int method = 0; method < methods; ++method) {
+        std::vector<cv::Mat>& out = outs[std::size_t(method)];
+        vp::MaskOptions mo = options;
+        mo.refine_gel = method != 2;
         const std::clock_t c0 = std::clock();  // process CPU time, all threads
         const auto t0 = std::chrono::steady_clock::now();
         vispack::parallel_for(slices, threads, [&](std::int64_t i) {
@@ -84,14 +91,18 @@ int main(int argc, char** argv) {
             out[std::size_t(i)] = vp::compute_mask(rgb, &ct, out_to_ct, mo).mask;
           }
         });
-        times.push_back(
+        all_times[std::size_t(method)].push_back(
             std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
-        cpu.push_back(double(std::clock() - c0) / CLOCKS_PER_SEC);
+        all_cpu[std::size_t(method)].push_back(double(std::clock() - c0) / CLOCKS_PER_SEC);
       }
+    }
+    for (int method = 0; method < methods; ++method) {
+      std::vector<double>& times = all_times[std::size_t(method)];
+      std::vector<double>& cpu = all_cpu[std::size_t(method)];
       std::sort(times.begin(), times.end());
       std::sort(cpu.begin(), cpu.end());
       const double seconds = times[times.size() / 2];
-      const cv::Mat& m = out[0];
+      const cv::Mat& m = outs[std::size_t(method)][0];
       const double iou = double(cv::countNonZero(m & truth)) / cv::countNonZero(m | truth);
       const char* name = method == 0   ? "colour threshold + opening (baseline)"
                          : method == 1 ? "CT mask + gel refinement"

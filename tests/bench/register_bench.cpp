@@ -9,7 +9,9 @@
 // Phantom mode (scripts/bench.sh): registers consecutive slice pairs of a vispack-phantom folder
 // with every method and ecc_scale offered, one thread, and writes the estimated and true pair
 // matrices as JSON (errors are computed by the caller, the same way for every peer); --dump
-// also writes each pair's grey slices as MetaImage (.mhd + .raw) for elastix.
+// also writes each pair's grey slices as MetaImage (.mhd + .raw) for elastix. Each repetition
+// times the estimate in memory (frames already decoded) and, apart, reading both slices from
+// their PNG files as the stage does (elastix reads its two files too: the comparison adds them).
 //   build/bin/register_bench --phantom DIR [--pairs N] [--reps R] --json OUT [--dump DIR]
 #include <algorithm>
 #include <chrono>
@@ -91,8 +93,11 @@ int run_phantom(const std::string& dir, int max_pairs, int reps, const std::stri
     return !s.at("black").get<bool>() && s.at("duplicate_of").is_null() &&
            !s.at("jump").get<bool>();
   };
+  auto path_of = [&](std::size_t k) {
+    return dir + "/rgb/" + slices[k].at("file").get<std::string>();
+  };
   auto load = [&](std::size_t k) {
-    const std::string path = dir + "/rgb/" + slices[k].at("file").get<std::string>();
+    const std::string path = path_of(k);
     cv::Mat m = cv::imread(path, cv::IMREAD_COLOR);
     if (m.empty()) throw vispack::IoError(path + ": cannot read");
     cv::cvtColor(m, m, cv::COLOR_BGR2RGB);  // the pipeline's slices are RGB
@@ -144,8 +149,22 @@ int run_phantom(const std::string& dir, int max_pairs, int reps, const std::stri
     options.method = st.method;
     options.ecc_scale = st.ecc_scale;
     nlohmann::json mats = nlohmann::json::array();
-    std::vector<double> times, cpu;
+    std::vector<double> times, cpu, read_times, read_cpu;
     for (int r = 0; r < reps; ++r) {
+      // Reading both slices of every pair from their files (decode + RGB order), timed apart.
+      {
+        const std::clock_t c0 = std::clock();
+        const auto t0 = std::chrono::steady_clock::now();
+        for (std::size_t i = 0; i < pairs.size(); ++i) {
+          cv::Mat a = load(pairs[i].first), b = load(pairs[i].second);
+          if (a.size() != from[i].size() || b.size() != to[i].size())
+            throw vispack::IoError(path_of(pairs[i].first) + ": size changed");
+        }
+        read_times.push_back(
+            std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() /
+            double(pairs.size()));
+        read_cpu.push_back(double(std::clock() - c0) / CLOCKS_PER_SEC / double(pairs.size()));
+      }
       // Per pair: both frames prepared and the pair estimated (elastix also reads both images).
       const std::clock_t c0 = std::clock();  // process CPU time: steadier on a loaded machine
       const auto t0 = std::chrono::steady_clock::now();
@@ -161,16 +180,23 @@ int run_phantom(const std::string& dir, int max_pairs, int reps, const std::stri
           mats.push_back(
               matrix_json(vp::rigid_matrix(est[i].relative, vp::image_centre(from[i].size()))));
     }
-    std::sort(times.begin(), times.end());
-    std::sort(cpu.begin(), cpu.end());
+    auto med = [](std::vector<double> v) {
+      std::sort(v.begin(), v.end());
+      return v[v.size() / 2];
+    };
     results.push_back({{"method", st.method},
-                       {"cpu_seconds_per_pair", cpu[cpu.size() / 2]},
+                       {"cpu_seconds_per_pair", med(cpu)},
                        {"ecc_scale", std::string(st.method) == "phase" ? 0.0 : st.ecc_scale},
-                       {"seconds_per_pair", times[times.size() / 2]},
+                       {"seconds_per_pair", med(times)},
+                       {"read_seconds_per_pair", med(read_times)},
+                       {"read_cpu_seconds_per_pair", med(read_cpu)},
                        {"times", times},
+                       {"cpu_times", cpu},
+                       {"read_times", read_times},
+                       {"read_cpu_times", read_cpu},
                        {"estimates", mats}});
-    std::fprintf(stderr, "register_bench: %s ecc_scale %.3g: %.1f ms/pair\n", st.method,
-                 st.ecc_scale, 1e3 * times[times.size() / 2]);
+    std::fprintf(stderr, "register_bench: %s ecc_scale %.3g: %.1f ms/pair (+ %.1f ms reading)\n",
+                 st.method, st.ecc_scale, 1e3 * med(times), 1e3 * med(read_times));
   }
   out["results"] = results;
   vispack::write_file_atomic(json_out, out.dump(1));
