@@ -555,8 +555,7 @@ TEST_F(Bricks, ScriptedWindowMatchesTheHeadlessScreenshots) {
   // A bad script is refused with a usage error naming the line, before any window opens (so
   // without xvfb-run, whose own clean-up can fail under a parallel ctest and exit 5).
   std::ofstream(script) << "azimuth 30\nfly away\n";
-  std::string out;
-  const int rc = vispack::test::run_command(bin + common + " --script " + script, &out);
+  rc = vispack::test::run_command(bin + common + " --script " + script, &out);
   EXPECT_EQ(rc, 2) << out;
   EXPECT_NE(out.find("view.script:2: unknown command 'fly'"), std::string::npos) << out;
 }
