@@ -23,10 +23,10 @@ constexpr float kHuLow = -1000.f, kHuHigh = 1000.f;  // template clamp
 // Nominal anchor error at confidence 1, working pixels: the best case (measured 0.02–0.04 on the
 // head-CT case); the solve inflates it from the residuals where a stack's anchors are worse.
 constexpr double kSigmaWorkingPx = 0.05;
-constexpr double kOutlineReachPx =
-    3.0;  // the outline step may move the translation this far (working px)
-// ... and turn this far: on a body a few working pixels across (the `tiny` preset) the outline
-// alone turned 1–2° away from a good multimodal estimate.
+// The outline step (4) may move the translation this far (working pixels) and turn this far: on
+// a body a few working pixels across (the `tiny` preset) the outline alone turned 1–2° away from
+// a good multimodal estimate.
+constexpr double kOutlineReachPx = 3.0;
 constexpr double kOutlineTurnDeg = 1.0;
 constexpr int kFeatures = 10;  // 1, r, g, b, r², g², b², rg, rb, gb
 
@@ -378,8 +378,6 @@ AnchorEstimate estimate_ct_anchor(const RegisterFrame& frame, const cv::Mat& ct_
     ct_work.convertTo(s, CV_32F, 1.0 / 600.0, -(options.hu_threshold - 300.0) / 600.0);
     return body_only(cv::Mat(cv::max(cv::min(s, 1.0), 0.0)));
   }();
-  // The colour body alone: fiducial tubes and debris in the gel, which the CT does not show,
-  // are cut off (largest component of the half level, grown by two pixels for the soft edge).
   const cv::Mat soft_colour = body_only(colour_softbody(colour));
   auto fine = [&](cv::Matx23d start, double* rho_out) -> std::optional<cv::Matx23d> {
     // Two passes: half working resolution, then full; the polynomial refitted before each.
@@ -429,7 +427,7 @@ AnchorEstimate estimate_ct_anchor(const RegisterFrame& frame, const cv::Mat& ct_
   }
   if (!have) return est;
   {
-    // 5. Outline refinement: ECC of the soft body masks at full working resolution from the
+    // 4. Outline refinement: ECC of the soft body masks at full working resolution from the
     // multimodal result. The body's outline is the one feature both modalities show the same
     // way; the intensity map of step 3 is not exact inside the body (texture the CT does not
     // resolve, tissues of one colour and two densities), which biases the rotation of a small
