@@ -42,7 +42,7 @@ const SliceFile* ct_file(const Config& config, const std::vector<SliceFile>& ct_
 std::string pair_fingerprint(const Config& config, const std::vector<SliceFile>& files,
                              const std::vector<SliceFile>& ct_files, bool anchored, int k) {
   Fingerprint fp;
-  fp.text("pairs-v3");  // the record's layout and method version (v3: CT anchor)
+  fp.text("pairs-v4");  // the record's layout and method version (v4: σ from the body size)
   fp.text(config_section_hash(config, {"register", "spacing_mm"}));
   for (int j = std::max(0, k - 4); j <= k; ++j)
     fp.file(files[std::size_t(j)].path);

@@ -7,6 +7,7 @@
 
 #include <opencv2/imgproc.hpp>
 
+#include "phantom_case.h"
 #include "test_support.h"
 #include "vispack/common/nrrd.h"
 #include "vispack/phantom/phantom.h"
@@ -188,14 +189,8 @@ TEST(MaskCli, ExitCodes) {
 // (slice 1: IoU 0.48). Measured 0.994 stack, 0.975 worst slice, labels 1.000.
 TEST(MaskStage, AnatomyPresetAgainstTruth) {
   TempDir dir("vispack-mask-anatomy");
-  vph::PhantomOptions po;
-  po.preset = "anatomy";
-  po.seed = 3;
-  po.quiet = true;
-  vph::make_phantom(dir.path(), po);
-  const vp::Config config = vp::load_config(dir / "config.json");
-  vp::StageOptions so;
-  so.quiet = true;
+  const vp::Config config = vispack::test::make_phantom_case(dir.path(), "anatomy", 3);
+  const vp::StageOptions so = vispack::test::quiet_stage_options();
   vp::run_register_stage(config, so);
   vp::run_mask_stage(config, so);
   vp::run_labels_stage(config, so);

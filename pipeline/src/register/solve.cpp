@@ -778,8 +778,16 @@ StackSolve solve_stack(const std::vector<SlicePairs>& pairs, cv::Size size,
   auto curvature_ok = [&](int i) {  // terms around node i use edges into i and i+1
     return i >= 1 && i + 1 < m && primary[std::size_t(i)] && primary[std::size_t(i + 1)];
   };
+  // The smoothness prior acts only between the first and the last anchored node: beyond them
+  // (slices without body at the stack's ends) a second-difference prior would extrapolate the
+  // anchors' trend, and their noise with it, linearly; the random-walk prior alone gives the
+  // best prediction of a random walk there: the nearest anchored transform (flat).
+  int first_anchored = m, last_anchored = -1;
+  for (int i = 0; i < m; ++i)
+    if (anchor[std::size_t(i)]) first_anchored = std::min(first_anchored, i), last_anchored = i;
   auto smooth_ok = [&](int i) {
-    return i >= 1 && i + 1 < m && !cut[std::size_t(i)] && !cut[std::size_t(i + 1)];
+    return i >= 1 && i + 1 < m && !cut[std::size_t(i)] && !cut[std::size_t(i + 1)] &&
+           i - 1 >= first_anchored && i + 1 <= last_anchored;
   };
   // With no anchor at all, the stack is still solved (pairs only) but unanchored: pin node 0.
   bool any_anchor = false;

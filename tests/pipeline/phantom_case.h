@@ -1,0 +1,34 @@
+// Test helper: a phantom preset written into a folder, with its loaded config (shared by the
+// pipeline tests that score a stage against the phantom's truth).
+#pragma once
+
+#include <filesystem>
+#include <string>
+
+#include "vispack/phantom/phantom.h"
+#include "vispack/pipeline/config.h"
+#include "vispack/pipeline/stage_run.h"
+
+namespace vispack::test {
+
+// Writes phantom `preset` (seed; slice count, 0 = the preset's own) into `dir` quietly and
+// returns the config it wrote (dir/config.json), loaded.
+inline pipeline::Config make_phantom_case(const std::filesystem::path& dir,
+                                          const std::string& preset, int seed, int slices = 0) {
+  phantom::PhantomOptions options;
+  options.preset = preset;
+  options.seed = seed;
+  options.slices = slices;
+  options.quiet = true;
+  phantom::make_phantom(dir, options);
+  return pipeline::load_config(dir / "config.json");
+}
+
+// Stage options for a whole, quiet, unforced run.
+inline pipeline::StageOptions quiet_stage_options() {
+  pipeline::StageOptions options;
+  options.quiet = true;
+  return options;
+}
+
+}  // namespace vispack::test
