@@ -416,25 +416,30 @@ class Hostile(PackedVolume):
             self.with_table_checksum(d)
         self.assert_error(self.copy_with(moved, "moved.vpk"), "out of place")
 
-    def test_zstd_frame_of_the_wrong_size(self):
-        """A valid zstd frame (checksums fixed up) that decodes to too few bytes."""
+    def test_zstd_frames_of_the_wrong_size(self):
+        """Valid zstd frames (checksums fixed up) that decode to too few bytes, or declare 1 TiB
+        (a reader trusting the frame header would try to allocate it)."""
         with vispack.open(self.path) as f:
             k, level, name, bx, by, bz = self.zstd_entry(f)
             en = f.index[k]
             off, n, at = int(en["offset"]), int(en["stored_size"]), f.header.index_off + 64 * k
-        frame = zstandard.ZstdCompressor().compress(b"\x01" * 40)
-        self.assertLess(len(frame), n)
+        short = zstandard.ZstdCompressor(write_checksum=False).compress(b"\x01" * 40)
+        self.assertEqual(short[4], 0x20)  # single segment, 1-byte content size (40)
+        huge = short[:4] + bytes([0xE0]) + struct.pack("<Q", 1 << 40) + short[6:]
+        self.assertEqual(zstandard.frame_content_size(huge), 1 << 40)
+        for frame in (short, huge):
+            self.assertLess(len(frame), n)
 
-        def edit(d):
-            d[off:off + n] = frame + bytes(n - len(frame))
-            struct.pack_into("<QQ", d, at + 24, len(frame), checksum.xxh64(frame))
-            self.with_table_checksum(d)
-        bad = self.copy_with(edit, "frame.vpk")
-        with vispack.open(bad, verify_checksums=True) as f:
-            with self.assertRaises(vispack.VpkError) as cm:
-                f[name].level(level)[...]
-            self.assertIn(f"level {level} channel {name} brick ({bx},{by},{bz})", str(cm.exception))
-
+            def edit(d, frame=frame):
+                d[off:off + n] = frame + bytes(n - len(frame))
+                struct.pack_into("<QQ", d, at + 24, len(frame), checksum.xxh64(frame))
+                self.with_table_checksum(d)
+            bad = self.copy_with(edit, "frame.vpk")
+            with vispack.open(bad, verify_checksums=True) as f:
+                with self.assertRaises(vispack.VpkError) as cm:
+                    f[name].level(level)[...]
+                self.assertIn(f"level {level} channel {name} brick ({bx},{by},{bz})",
+                              str(cm.exception))
 
     def test_random_mutations_never_crash(self):
         """Random bytes of header, metadata, index and label IDs changed (table checksum fixed up
