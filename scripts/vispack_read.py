@@ -18,8 +18,10 @@ import sys
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python"))
 
-from vispack import VpkError, VpkFile, xxh64  # noqa: E402,F401  (re-exported)
+from vispack import VpkError, VpkFile, xxh64  # noqa: E402  (re-exported: the old module API)
 from vispack.cli import main  # noqa: E402
+
+__all__ = ["VpkError", "VpkFile", "xxh64", "main"]
 
 if __name__ == "__main__":
     sys.exit(main(sys.argv[1:]))

@@ -35,7 +35,8 @@ def _parser():
     p.add_argument("--channel")
     p.add_argument("--level", type=int, default=0)
     p.add_argument("--region", help="z0:z1,y0:y1,x0:x1 (indices [z, y, x], numpy slices)")
-    p.add_argument("--raw", help="write the channel's level as raw little-endian voxels (x fastest)")
+    p.add_argument("--raw", help="write the level (or region) as raw little-endian voxels, "
+                                 "x fastest")
     p.add_argument("--verify", action="store_true", help="check every checksum and the padding")
     return p
 

@@ -238,8 +238,9 @@ def _expected_positions(levels, nchan):
         gx, gy, _ = info.grid
         k = np.arange(info.brick_count, dtype=np.int64)
         one = np.stack([k % gx, (k // gx) % gy, k // (gx * gy)], axis=1)
+        column = np.ones((len(k), 1), np.int64)
         for c in range(nchan):
-            parts.append(np.concatenate([one, np.full((len(k), 1), lv), np.full((len(k), 1), c)], 1))
+            parts.append(np.concatenate([one, column * lv, column * c], axis=1))
     return np.concatenate(parts)
 
 
@@ -258,10 +259,10 @@ def _entry_checks(index, channels, levels, h):
     """The per-entry rules of SPEC 'Brick index' as (mask, message) pairs."""
     codec = index["codec"]
     off, n = index["offset"], index["stored_size"]
-    chan = index["channel"].astype(np.int64)
+    chan = np.minimum(index["channel"].astype(np.int64), len(channels) - 1)  # positions checked
     voxel_bytes = np.array([c.brick_bytes_per_voxel for c in channels], np.uint64)
-    raw = voxel_bytes[np.minimum(chan, len(channels) - 1)] * np.uint64(h.brick_edge ** 3)
-    is_label = np.array([c.type in LABEL_TYPES for c in channels])[np.minimum(chan, len(channels) - 1)]
+    raw = voxel_bytes[chan] * np.uint64(h.brick_edge ** 3)
+    is_label = np.array([c.type in LABEL_TYPES for c in channels])[chan]
     uniform, payload = codec == UNIFORM, (codec == RAW) | (codec == ZSTD)
     pend = np.uint64(h.payload_end)
     lf, lc = index["label_first"].astype(np.uint64), index["label_count"].astype(np.uint64)

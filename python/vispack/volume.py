@@ -18,7 +18,7 @@ import zstandard
 
 from . import layout
 from .checksum import xxh64
-from .layout import ALIGN, RAW, UNIFORM, ZSTD, VpkError
+from .layout import ALIGN, RAW, UNIFORM
 
 
 def open(path, verify_checksums=False, on_decode=None):  # noqa: A001 (vispack.open, like io.open)
@@ -193,7 +193,8 @@ class VpkFile:
         if self.on_decode is not None:
             self.on_decode(level, ch.name, bx, by, bz, layout.CODEC_NAMES[codec])
         if codec == UNIFORM:
-            value = np.frombuffer(self.index[k]["min"].tobytes()[:ch.brick_bytes_per_voxel], ch.dtype)
+            value = np.frombuffer(self.index[k]["min"].tobytes()[:ch.brick_bytes_per_voxel],
+                                  ch.dtype)
             return np.broadcast_to(value.reshape(shape[3:]), shape)
         payload = self._payload(k, nbytes)
         data = payload if codec == RAW else self._decompress(k, payload, nbytes)

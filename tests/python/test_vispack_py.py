@@ -3,10 +3,11 @@
 
 Run by ctest (tests/python/CMakeLists.txt) as
     /usr/bin/python3 tests/python/test_vispack_py.py
-with VISPACK_BIN_DIR set to the build's bin/ folder. It makes its own packed file: the `tiny`
-phantom (vispack-phantom), packed by vispack-run with 8-voxel bricks (config edited) so every level has many
-bricks, and uses vispack-extract (the C++ reader) for the reference decode of every level and
-channel. Arrays are indexed [z, y, x(, component)], as the package returns them.
+with VISPACK_BIN_DIR set to the build's bin/ folder. It makes its own packed files: the `tiny`
+phantom (vispack-phantom) packed by vispack-run with 8-voxel bricks (config edited) so every level
+has many bricks, once with zstd and once uncompressed (raw bricks); vispack-extract (the C++
+reader) gives the reference decode of every level and channel. Arrays are indexed
+[z, y, x(, component)], as the package returns them.
 Exits 77 (ctest: skipped) when numpy, zstandard or the tools are missing.
 """
 import gzip
@@ -107,7 +108,8 @@ def random_box(rng, shape, e):
         kind = rng.integers(0, 6)
         if kind == 0:    # around a brick border
             border = int(rng.integers(0, -(-n // e) + 1)) * e
-            a, b = max(0, border - int(rng.integers(1, e))), min(n, border + int(rng.integers(1, e)))
+            a = max(0, border - int(rng.integers(1, e)))
+            b = min(n, border + int(rng.integers(1, e)))
             key.append(slice(min(a, n - 1), max(b, min(a, n - 1) + 1)))
         elif kind == 1:  # touching the volume edge
             key.append(slice(int(rng.integers(0, n)), n))
@@ -347,7 +349,8 @@ class Hostile(PackedVolume):
     def with_table_checksum(self, data):
         """Recomputes the header's table checksum, so only the deeper checks can catch an edit."""
         meta_off = struct.unpack_from("<Q", data, 40)[0]  # header field metadata_offset
-        struct.pack_into("<Q", data, 120, checksum.xxh64(bytes(data[:120]) + bytes(data[meta_off:])))
+        table = checksum.xxh64(bytes(data[:120]) + bytes(data[meta_off:]))
+        struct.pack_into("<Q", data, 120, table)
 
     def assert_error(self, path, *words, **open_args):
         with self.assertRaises(vispack.VpkError) as cm:
@@ -390,8 +393,9 @@ class Hostile(PackedVolume):
             self.assertIn("checksum mismatch", str(cm.exception))
             with self.assertRaises(vispack.VpkError):
                 f.verify()
-        cli = subprocess.run([sys.executable, os.path.join(SOURCE_DIR, "scripts", "vispack_read.py"),
-                              "--verify", bad], capture_output=True, text=True)
+        script = os.path.join(SOURCE_DIR, "scripts", "vispack_read.py")
+        cli = subprocess.run([sys.executable, script, "--verify", bad], capture_output=True,
+                             text=True)
         self.assertEqual(cli.returncode, 4, cli.stderr)
         self.assertIn("checksum mismatch", cli.stderr)
 
