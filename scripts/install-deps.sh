@@ -13,7 +13,9 @@ packages=(
   libimgui-dev
   # tests: GoogleTest, Google Benchmark, headless GL, reference tools
   libgtest-dev libgmock-dev libbenchmark-dev xvfb xauth libgl1-mesa-dri libegl-mesa0
-  openimageio-tools libopenvdb-tools zstd python3-numpy python3-zstandard
+  openimageio-tools libopenvdb-tools zstd
+  # the Python package (python/vispack): numpy, zstandard; xxhash (fast checksums), dask (tests)
+  python3-numpy python3-zstandard python3-xxhash python3-dask
   # sample data fetch
   dpkg-dev xz-utils
 )
