@@ -12,13 +12,12 @@
 #include "vispack/common/error.h"
 #include "vispack/common/math_constants.h"
 #include "vispack/pipeline/outline.h"
+#include "vispack/pipeline/register/rotation_search.h"
 
 namespace vispack::pipeline {
 namespace {
 
-constexpr int kCaptureEdge = 128;     // longer edge of the capture level, pixels
-constexpr double kAngleRange = 10.0;  // capture rotation search: −10°..10°
-constexpr double kAngleStep = 2.5;
+constexpr int kCaptureEdge = 128;                    // longer edge of the capture level, pixels
 constexpr float kHuLow = -1000.f, kHuHigh = 1000.f;  // template clamp
 // Nominal anchor error at confidence 1, working pixels, for a body of radius of gyration
 // kSigmaRadiusWorkingPx or less; a larger body's outline averages more independent edge samples
@@ -182,14 +181,6 @@ cv::Mat predict_ct(const cv::Mat& rgb, const double coef[kFeatures]) {
   return out;
 }
 
-cv::Mat rotate_about_centre(const cv::Mat& image, double angle_deg) {
-  if (angle_deg == 0.0) return image;
-  cv::Mat out;
-  cv::warpAffine(image, out, cv::Mat(rigid_matrix({angle_deg, 0, 0}, image_centre(image.size()))),
-                 image.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_REPLICATE);
-  return out;
-}
-
 // A soft body map (0 outside, 1 inside, a ramp across the edge) reduced to the body: the
 // largest component of its half level, grown by two pixels for the soft edge. Fiducial tubes
 // and debris in the gel, which the other modality does not show, are cut off.
@@ -229,22 +220,8 @@ std::optional<cv::Matx23d> capture(const cv::Mat& tmpl, const cv::Mat& input) {
     cand.score = std::isfinite(v) ? v : -1.0;
     return cand;
   };
-  std::vector<Candidate> grid;
-  for (double a = -kAngleRange; a <= kAngleRange + 1e-9; a += kAngleStep)
-    grid.push_back(evaluate(a));
-  std::size_t bi = 0;
-  for (std::size_t i = 1; i < grid.size(); ++i)
-    if (grid[i].score > grid[bi].score) bi = i;
-  Candidate best = grid[bi];
-  if (bi > 0 && bi + 1 < grid.size()) {
-    const double lo = grid[bi - 1].score, hi = grid[bi + 1].score;
-    const double denom = lo - 2.0 * best.score + hi;
-    if (denom < 0.0) {
-      const Candidate refined =
-          evaluate(best.angle + std::clamp(0.5 * (lo - hi) / denom, -0.5, 0.5) * kAngleStep);
-      if (refined.score > best.score) best = refined;
-    }
-  }
+  // −10°..10°, refined by half steps and a parabola (register/rotation_search.h).
+  const Candidate best = sweep_rotation(evaluate);
   if (best.score < 0.2) return std::nullopt;
   cv::Matx23d m = best.m;
   cv::Mat t, in;

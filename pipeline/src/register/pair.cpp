@@ -13,25 +13,15 @@
 #include "vispack/common/hash.h"
 #include "vispack/common/math_constants.h"
 #include "vispack/common/parallel.h"
+#include "vispack/pipeline/register/rotation_search.h"
 
 namespace vispack::pipeline {
 namespace {
 
-constexpr double kAngleRange = 10.0;  // coarse rotation search: −10°..10°
-constexpr double kAngleStep = 2.5;
 constexpr int kLookBack = 4;  // edges reach back over at most 4 slices
 // Fine ECC stops when the correlation improves by less than this per iteration: from the
 // coarse estimate (within ~0.1 coarse px) it converges in a few iterations.
 constexpr double kFineEps = 1e-5;
-
-// Rotates `image` about its centre so that out(x) = image(c + R(φ)(x − c)).
-cv::Mat rotate_about_centre(const cv::Mat& image, double angle_deg) {
-  if (angle_deg == 0.0) return image;
-  cv::Mat out;
-  cv::warpAffine(image, out, cv::Mat(rigid_matrix({angle_deg, 0, 0}, image_centre(image.size()))),
-                 image.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_REPLICATE);
-  return out;
-}
 
 // ECC at one level; `m` (full-resolution j→k matrix) is updated in place. Returns rho or throws.
 double ecc_level(const cv::Mat& from, const cv::Mat& to, double scale, cv::Matx23d& m,
@@ -138,35 +128,8 @@ PairEstimate estimate_pair(const RegisterFrame& from, const RegisterFrame& to,
     return rigid_from_matrix(
         unscale_affine(rigid_matrix({c.angle, rs.x, rs.y}, cc), from.coarse_scale), centre);
   };
-  // The sweep over −10°..10°, refined by half steps and a parabola.
-  auto sweep = [&]() {
-    std::vector<Candidate> grid;
-    for (double a = -kAngleRange; a <= kAngleRange + 1e-9; a += kAngleStep)
-      grid.push_back(evaluate(a));
-    std::size_t bi = 0;
-    for (std::size_t i = 1; i < grid.size(); ++i)
-      if (grid[i].score > grid[bi].score) bi = i;
-    Candidate best = grid[bi];
-    Candidate lo = evaluate(best.angle - kAngleStep * 0.5),
-              hi = evaluate(best.angle + kAngleStep * 0.5);
-    const double denom = lo.score - 2.0 * best.score + hi.score;
-    double angle = best.angle;
-    if (denom < 0.0) {
-      angle += std::clamp(0.5 * (lo.score - hi.score) / denom, -0.5, 0.5) * kAngleStep * 0.5;
-    } else if (lo.score > best.score || hi.score > best.score) {
-      angle = lo.score > hi.score ? lo.angle : hi.angle;
-    }
-    if (angle != best.angle) {
-      Candidate refined = evaluate(angle);
-      if (refined.score >= std::max(best.score, std::max(lo.score, hi.score)) - 1e-3) {
-        best = refined;
-      } else {
-        best = lo.score > hi.score ? (lo.score > best.score ? lo : best)
-                                   : (hi.score > best.score ? hi : best);
-      }
-    }
-    return best;
-  };
+  // The sweep over −10°..10°, refined by half steps and a parabola (register/rotation_search.h).
+  auto sweep = [&]() { return sweep_rotation(evaluate); };
   // Coarse ECC from a phase estimate; returns rho (−1 on failure) and updates `m`.
   auto coarse_ecc = [&](cv::Matx23d& m) {
     try {
