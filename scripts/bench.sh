@@ -11,7 +11,8 @@
 #                tree is recorded and the report is marked "DIRTY TREE" at the top
 # Environment: VISPACK_BENCH_VHP_SLICES (default "2 4 8"): slice counts of the vhp-size scaling
 # runs; VISPACK_BENCH_MEDIUM=0 skips the medium phantom in the scaling runs;
-# VISPACK_BENCH_MEM_SLICES (default "64 128 256"): slice counts of the per-stage memory runs.
+# VISPACK_BENCH_MEM_SLICES (default "64 128 256"): slice counts of the per-stage memory runs;
+# VISPACK_BENCH_STORE_SLICES (default 8): slices of the vhp phantom of the stored-size run.
 # Results (JSON, logs) go to BUILD/bench/results; any failing benchmark makes the script exit 1.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
@@ -23,7 +24,7 @@ while [[ $# -gt 0 ]]; do
     --no-build) do_build=0 ;;
     --build) build=$(realpath -m "$2"); shift ;;
     --require-clean) require_clean=1 ;;
-    -h|--help) sed -n '2,15p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,16p' "$0"; exit 0 ;;
     *) echo "bench.sh: unknown option $1" >&2; exit 2 ;;
   esac
   shift
@@ -112,6 +113,16 @@ vol_name=$(basename "$vol_phantom")
 /usr/bin/time -v "$bin/vispack-run" "$vol_phantom/config.json" --force --quiet \
   >"$res/run-$vol_name.log" 2>&1 || { tail -30 "$res/run-$vol_name.log"; fail "vispack-run failed"; }
 "$py" "$root/scripts/bench/pack_sweep.py" "$vol_phantom" "$res/pack.json" || fail "pack sweep failed"
+
+if [[ $quick == 0 ]]; then
+  # Issue 12: stored size against the OpenVDB export and zstd -3 of the raw level-0 bytes, and
+  # the work folder against the input, at the real slice size. Recorded in docs/BENCHMARKS.md
+  # ("Stored size and intermediates", a section this script's report keeps as written).
+  stamp "Stored size and intermediates: vhp phantom, ${VISPACK_BENCH_STORE_SLICES:-8} slices"
+  "$root/scripts/bench/store_size.sh" "$bin" "$work/store" "${VISPACK_BENCH_STORE_SLICES:-8}" \
+    "$res/store_size.json" >"$res/store_size.md" 2>"$res/store_size.log" ||
+    { cat "$res/store_size.log"; fail "stored-size benchmark failed"; }
+fi
 
 stamp "Viewer: slice renderer, then VTK's GPU ray caster on the same volume and view"
 if [[ -x $bin/viewer_bench ]]; then

@@ -51,7 +51,8 @@ render render-iso iso "${view[@]}"
 step "Done. Outputs:"
 cat <<TXT
   phantom slices + truth   $out/phantom/{rgb,ct,seg,truth}/
-  registered slices        $work/register/registered/
+  transforms + QC          $work/register/  (transforms.json, qc/; full-size registered slices
+                           only with "work": {"write_registered": true} in the config)
   body masks + overlays    $work/mask/  (mask_NNNN.png, overlay_NNNN.png)
   label slices             $work/labels/
   stage reports            $work/*/report.json

@@ -226,7 +226,7 @@ const std::vector<std::pair<std::string, std::vector<std::string>>>& known_keys(
   static const std::vector<std::pair<std::string, std::vector<std::string>>> table = {
       {"",
        {"name", "work_dir", "output", "vdb_output", "spacing_mm", "rgb", "ct", "seg", "register",
-        "mask", "pack", "vdb"}},
+        "mask", "pack", "work", "vdb"}},
       {"rgb", {"dir", "pattern", "raw"}},
       {"ct", {"dir", "pattern", "raw", "pixel_spacing_mm", "slope", "intercept", "slice_offset"}},
       {"seg", {"dir", "pattern", "raw", "palette", "mode", "tolerance", "strict", "id_map"}},
@@ -238,7 +238,10 @@ const std::vector<std::pair<std::string, std::vector<std::string>>>& known_keys(
         "overrides"}},
       {"register.output_frame", {"rotation_deg", "dx_px", "dy_px"}},
       {"mask", {"hu_threshold", "opening_px", "refine_gel", "gel_colour", "gel_distance"}},
-      {"pack", {"brick_edge", "zstd_level", "downsample", "threads"}},
+      {"pack",
+       {"brick_edge", "zstd_level", "downsample", "threads", "keep_outside_body",
+        "crop_margin_px"}},
+      {"work", {"write_registered", "write_ct", "overlay_max_px"}},
       {"vdb", {"enabled"}},
   };
   return table;
@@ -426,6 +429,28 @@ Config load_config(const std::string& path) {
     p.zstd_level = int(s.integer("zstd_level", 3, 0, 22));
     p.downsample = int(s.integer("downsample", 1, 1, 64));
     p.threads = int(s.integer("threads", 0, 0, 4096));
+    const std::string keep = s.choice("keep_outside_body", {"none", "colour", "ct", "all"}, "none");
+    p.keep_colour_outside_body = keep == "colour" || keep == "all";
+    p.keep_ct_outside_body = keep == "ct" || keep == "all";
+    if (s.has("crop_margin_px")) {
+      if (config.raw_json["pack"]["crop_margin_px"].is_null()) {
+        s.find("crop_margin_px");  // null: no crop, as when absent
+      } else {
+        p.crop_margin_px = int(s.integer("crop_margin_px", std::nullopt, 0, 65536));
+      }
+    } else {
+      s.find("crop_margin_px");
+    }
+    s.finish();
+  }
+  {
+    Section s = top.child("work");
+    auto& w = config.work;
+    w.write_registered = s.boolean("write_registered", false);
+    w.write_ct = s.boolean("write_ct", false);
+    w.overlay_max_px = int(s.integer("overlay_max_px", 1024, 0, 65536));
+    if (w.overlay_max_px > 0 && w.overlay_max_px < 16)
+      s.fail("overlay_max_px", cat(w.overlay_max_px, " is too small (0 = full size, else >= 16)"));
     s.finish();
   }
   {
@@ -528,6 +553,14 @@ json config_to_json(const Config& config, const std::string& base_dir) {
                  {"zstd_level", config.pack.zstd_level},
                  {"downsample", config.pack.downsample},
                  {"threads", config.pack.threads}};
+  const PackOptions& p = config.pack;
+  out["pack"]["keep_outside_body"] = p.keep_colour_outside_body
+                                         ? (p.keep_ct_outside_body ? "all" : "colour")
+                                         : (p.keep_ct_outside_body ? "ct" : "none");
+  if (p.crop_margin_px) out["pack"]["crop_margin_px"] = *p.crop_margin_px;
+  out["work"] = {{"write_registered", config.work.write_registered},
+                 {"write_ct", config.work.write_ct},
+                 {"overlay_max_px", config.work.overlay_max_px}};
   out["vdb"] = {{"enabled", config.vdb.enabled}};
   return out;
 }

@@ -2,6 +2,7 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <cmath>
 #include <filesystem>
 #include <mutex>
 
@@ -23,16 +24,29 @@ namespace {
 
 namespace fs = std::filesystem;
 
+// The overlay a person inspects, its longer side brought down to `max_px` (block mean; the
+// outline stays visible as a yellow tint); 0 = full size.
+cv::Mat fit_overlay(const cv::Mat& overlay, int max_px) {
+  const int longer = std::max(overlay.cols, overlay.rows);
+  if (max_px <= 0 || longer <= max_px) return overlay;
+  const double s = double(max_px) / longer;
+  cv::Mat small;
+  cv::resize(overlay, small,
+             cv::Size(std::max(1, int(std::lround(overlay.cols * s))),
+                      std::max(1, int(std::lround(overlay.rows * s)))),
+             0, 0, cv::INTER_AREA);
+  return small;
+}
+
 }  // namespace
 
 StageResult run_mask_stage(const Config& config, const StageOptions& options) {
-  const std::vector<SliceFile> files = stack_slices(config);
-  const int n = int(files.size());
+  const StackInputs inputs = read_stack_inputs(config);
+  const int n = int(inputs.rgb.size());
   const std::string tpath = transforms_path(config);
-  const StackTransforms st = read_stack_transforms(config, n);
-  std::vector<SliceFile> ct_files;
-  if (config.ct) ct_files = list_slices(*config.ct);
-  StageRun run(config, "mask", n, options, {"mask", "ct"}, {tpath});
+  const StackTransforms& st = inputs.transforms;
+  StageRun run(config, "mask", n, options,
+               {"mask", "ct", "rgb", "work.write_ct", "work.overlay_max_px"}, {tpath});
   ScopedOpenCvThreads opencv_threads(run.threads() > 1 ? 1 : cv::getNumThreads());
   const SliceRange range = run.range();
   std::vector<double> coverage(static_cast<std::size_t>(range.size()), -1.0);
@@ -41,41 +55,35 @@ StageResult run_mask_stage(const Config& config, const StageOptions& options) {
   std::mutex gel_mutex;
   cv::Vec3d gel_sum(0, 0, 0);
   int gel_count = 0;
-  const cv::Size size(st.width, st.height);
   parallel_for(range.size(), run.threads(), [&](std::int64_t i) {
     const int k = range.first + int(i);
-    const std::string rgb_path = registered_rgb_path(config, k);
+    // The registered colour is rebuilt from input slice k and transforms.json (a stage input:
+    // a new transforms.json reruns every slice).
+    const std::string& rgb_path = inputs.rgb[std::size_t(k)].path;
     const int ct_k = config.ct ? k + config.ct->slice_offset : -1;
-    const bool has_ct = config.ct && ct_k >= 0 && ct_k < int(ct_files.size());
+    const bool has_ct = config.ct && ct_k >= 0 && ct_k < int(inputs.ct.size());
     Fingerprint fp;
-    fp.file(rgb_path);
-    if (has_ct) fp.file(ct_files[std::size_t(ct_k)].path);
+    fp.text("mask-v2").file(rgb_path);  // v2: colour from the input slice (issue 12)
+    if (has_ct) fp.file(inputs.ct[std::size_t(ct_k)].path);
     const std::string in = fp.str();
     std::vector<std::string> outs = {mask_path(config, k), run.slice_path("overlay", k)};
-    if (has_ct) outs.push_back(mask_ct_path(config, k));
+    const bool write_ct = has_ct && config.work.write_ct;
+    if (write_ct) outs.push_back(mask_ct_path(config, k));
     if (run.up_to_date(k, in, outs)) {
       run.skip(k);
       return;
     }
-    if (!fs::exists(rgb_path))
-      throw InputError(cat(rgb_path, ": missing; run vispack-register for slice ", k));
-    cv::Mat rgb = read_slice(rgb_path);
+    // A CT copy from an earlier run with work.write_ct must not outlive the slice it shows.
+    if (!write_ct) {
+      std::error_code ec;
+      fs::remove(mask_ct_path(config, k), ec);
+    }
+    cv::Mat rgb = registered_colour(config, inputs, k);
     std::uint64_t bytes = rgb.total() * rgb.elemSize();
-    if (rgb.depth() == CV_16U) rgb.convertTo(rgb, CV_8U, 255.0 / 65535.0);
-    if (rgb.channels() == 1) cv::cvtColor(rgb, rgb, cv::COLOR_GRAY2RGB);
-    if (rgb.size() != size)
-      throw InputError(cat(rgb_path, ": is ", rgb.cols, "x", rgb.rows, ", transforms.json says ",
-                           size.width, "x", size.height));
-    cv::Mat ct_hu;
-    cv::Matx23d out_to_ct(1, 0, 0, 0, 1, 0);
+    const CtSlice ct = read_ct_slice(config, inputs, k);
+    const cv::Mat& ct_hu = ct.hu;
     if (has_ct) {
-      const std::string& ct_path = ct_files[std::size_t(ct_k)].path;
-      cv::Mat raw = read_slice(ct_path, config.ct->raw);
-      if (raw.channels() != 1) throw InputError(cat(ct_path, ": CT slice must be single-channel"));
-      bytes += raw.total() * raw.elemSize();
-      raw.convertTo(ct_hu, CV_32F, config.ct->slope, config.ct->intercept);
-      const Similarity c = st.ct_to_rgb ? *st.ct_to_rgb : defined_ct_to_rgb(config);
-      out_to_ct = output_to_ct(c, st.centre(), image_centre(ct_hu.size()));
+      bytes += ct_hu.total() * 2;
     } else {
       ++colour_only;
     }
@@ -83,13 +91,13 @@ StageResult run_mask_stage(const Config& config, const StageOptions& options) {
     // A black (lost) colour slice has no colour to refine with: its mask is the CT's alone.
     MaskOptions mask_options = config.mask;
     if (st.slices[std::size_t(k)].black) mask_options.refine_gel = false;
-    MaskSlice m = compute_mask(rgb, has_ct ? &ct_hu : nullptr, out_to_ct, mask_options);
+    MaskSlice m = compute_mask(rgb, has_ct ? &ct_hu : nullptr, ct.out_to_ct, mask_options);
     compute_ns +=
         std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - t0)
             .count();
     write_image(outs[0], m.mask);
-    write_image(outs[1], draw_mask_overlay(rgb, m.mask));
-    if (has_ct) write_image(outs[2], encode_hu16(resample_ct(ct_hu, out_to_ct, size)));
+    write_image(outs[1], fit_overlay(draw_mask_overlay(rgb, m.mask), config.work.overlay_max_px));
+    if (write_ct) write_image(outs[2], resampled_ct16(config, inputs, k, &ct));
     coverage[std::size_t(i)] = m.coverage;
     {
       std::lock_guard<std::mutex> lock(gel_mutex);

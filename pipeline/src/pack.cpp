@@ -42,6 +42,36 @@ cv::Mat majority_downsample(const cv::Mat& labels, int f, cv::Size out) {
   return result;
 }
 
+// Colour of each f x f block weighted by the mask (the format pyramid's alpha-weighted mean,
+// format/SPEC.md "Levels of detail", in floating point): a gel pixel, cleared to 0 or not, never
+// tints or darkens the tissue of its block; a block without body gets the plain mean.
+cv::Mat alpha_weighted_downsample(const cv::Mat& rgb, const cv::Mat& mask, cv::Size out) {
+  cv::Mat a, c, weighted, plain, sum_a;
+  mask.convertTo(a, CV_32F, 1.0 / 255.0);
+  rgb.convertTo(c, CV_32FC3);
+  cv::Mat a3;
+  cv::merge(std::vector<cv::Mat>{a, a, a}, a3);
+  cv::resize(c.mul(a3), weighted, out, 0, 0, cv::INTER_AREA);
+  cv::resize(a, sum_a, out, 0, 0, cv::INTER_AREA);
+  cv::resize(rgb, plain, out, 0, 0, cv::INTER_AREA);
+  cv::Mat result(out, CV_8UC3);
+  for (int y = 0; y < out.height; ++y) {
+    const cv::Vec3f* w = weighted.ptr<cv::Vec3f>(y);
+    const float* s = sum_a.ptr<float>(y);
+    const cv::Vec3b* p = plain.ptr<cv::Vec3b>(y);
+    cv::Vec3b* o = result.ptr<cv::Vec3b>(y);
+    for (int x = 0; x < out.width; ++x) {
+      if (s[x] <= 0.0f) {
+        o[x] = p[x];
+        continue;
+      }
+      for (int ch = 0; ch < 3; ++ch)
+        o[x][ch] = cv::saturate_cast<std::uint8_t>(w[x][ch] / s[x]);
+    }
+  }
+  return result;
+}
+
 std::string hash_of_file_or_empty(const std::string& path) {
   if (path.empty() || !fs::exists(path)) return "";
   return hex64(xxh64_file(path));
@@ -50,15 +80,16 @@ std::string hash_of_file_or_empty(const std::string& path) {
 }  // namespace
 
 StageResult run_pack_stage(const Config& config, const StageOptions& options) {
-  std::vector<SliceFile> stack = stack_slices(config);
+  const StackInputs inputs = read_stack_inputs(config);
+  const std::vector<SliceFile>& stack = inputs.rgb;
   const int n = int(stack.size());
   require_whole_stack(options, n, "vispack-pack");
   const std::string tpath = transforms_path(config);
-  StackTransforms transforms = read_stack_transforms(config, n);
+  const StackTransforms& transforms = inputs.transforms;
   const bool has_ct = config.ct.has_value(), has_labels = config.seg.has_value();
 
   // One unit of work: its input fingerprint covers every intermediate read.
-  Fingerprint fp = intermediates_fingerprint(config, n);
+  Fingerprint fp = intermediates_fingerprint(config, inputs);
   if (has_labels && !config.seg->palette.empty()) fp.file(config.seg->palette);
   fp.text(config.output);
   StageOptions unit = options;
@@ -73,13 +104,36 @@ StageResult run_pack_stage(const Config& config, const StageOptions& options) {
 
   const int f = config.pack.downsample;
   const cv::Size full(transforms.width, transforms.height);
-  const cv::Size out_size((full.width + f - 1) / f, (full.height + f - 1) / f);
+  // The part of the registered frame packed: all of it, or (pack.crop_margin_px) the union of
+  // the body masks plus the margin, its corners moved out to multiples of f so that the cropped
+  // grid is a sub-box of the uncropped one, downsampling included.
+  cv::Rect box(0, 0, full.width, full.height);
+  json crop_meta = nullptr;
+  if (config.pack.crop_margin_px) {
+    const int margin = *config.pack.crop_margin_px;
+    const cv::Rect body = body_bounds(config, n, full);
+    if (body.area() > 0) {
+      const int x0 = std::max(0, body.x - margin) / f * f;
+      const int y0 = std::max(0, body.y - margin) / f * f;
+      const int x1 = std::min(full.width, (body.br().x + margin + f - 1) / f * f);
+      const int y1 = std::min(full.height, (body.br().y + margin + f - 1) / f * f);
+      box = cv::Rect(x0, y0, x1 - x0, y1 - y0);
+    }
+    crop_meta = {{"margin_px", margin},
+                 {"body_found", body.area() > 0},
+                 {"box_px", {box.x, box.y, box.width, box.height}},
+                 {"uncropped_dims", {(full.width + f - 1) / f, (full.height + f - 1) / f, n}}};
+  }
+  const bool cropped = box.size() != full;
+  const cv::Size out_size((box.width + f - 1) / f, (box.height + f - 1) / f);
 
   format::WriterOptions wo;
   wo.dims = {out_size.width, out_size.height, n};
   wo.spacing_mm = {config.spacing_mm[0] * f, config.spacing_mm[1] * f, config.spacing_mm[2]};
-  // Voxel (0, 0) of a downsampled grid is centred on the middle of its f x f block.
-  wo.origin_mm = {config.spacing_mm[0] * (f - 1) / 2.0, config.spacing_mm[1] * (f - 1) / 2.0, 0.0};
+  // Voxel (0, 0) of a downsampled grid is centred on the middle of its f x f block; a crop moves
+  // it by the box's corner (full-resolution pixels).
+  wo.origin_mm = {config.spacing_mm[0] * ((f - 1) / 2.0 + box.x),
+                  config.spacing_mm[1] * ((f - 1) / 2.0 + box.y), 0.0};
   wo.brick_edge = config.pack.brick_edge;
   wo.zstd_level = std::max(1, config.pack.zstd_level);
   wo.compress = config.pack.zstd_level > 0;
@@ -147,6 +201,12 @@ StageResult run_pack_stage(const Config& config, const StageOptions& options) {
         {"overrides", overrides}}},
       {"downsample", f},
       {"alpha", "body mask coverage (work/mask), 0..255"},
+      {"outside_body",
+       {{"rgb", config.pack.keep_colour_outside_body ? "kept" : "cleared to 0"},
+        {"ct", !has_ct                            ? "no CT"
+               : config.pack.keep_ct_outside_body ? "kept"
+                                                  : "cleared to -1024 HU"}}},
+      {"crop", crop_meta},
       {"provenance",
        {{"tool", "vispack-pack"},
         {"vispack_version", version_string()},
@@ -170,13 +230,17 @@ StageResult run_pack_stage(const Config& config, const StageOptions& options) {
   std::uint64_t bytes = 0;
   std::set<std::uint16_t> ids_seen;
   for (int k = 0; k < n; ++k) {
-    Intermediates in = read_intermediates(config, k, full);
+    Intermediates in = read_intermediates(config, inputs, k);
     bytes += in.bytes;
-    cv::Mat rgb = in.rgb, mask = in.mask;
-    if (f > 1) {
-      cv::resize(rgb, rgb, out_size, 0, 0, cv::INTER_AREA);
-      cv::resize(mask, mask, out_size, 0, 0, cv::INTER_AREA);
+    if (cropped) {
+      in.rgb = in.rgb(box);
+      in.mask = in.mask(box);
+      if (has_ct) in.ct = in.ct(box);
+      if (has_labels) in.labels = in.labels(box);
     }
+    cv::Mat rgb = in.rgb, mask = in.mask;
+    if (f > 1) rgb = alpha_weighted_downsample(rgb, mask, out_size);
+    if (f > 1) cv::resize(mask, mask, out_size, 0, 0, cv::INTER_AREA);
     for (int y = 0; y < out_size.height; ++y) {
       const cv::Vec3b* r = rgb.ptr<cv::Vec3b>(y);
       const std::uint8_t* m = mask.ptr<std::uint8_t>(y);
@@ -225,6 +289,7 @@ StageResult run_pack_stage(const Config& config, const StageOptions& options) {
     if (!table.count(id)) unknown.push_back(id);
   run.set_report("output", config.output);
   run.set_report("dims", {out_size.width, out_size.height, n});
+  run.set_report("crop", crop_meta);
   run.set_report("output_bytes", std::uint64_t(fs::file_size(config.output)));
   run.set_report("input_bytes", bytes);
   run.set_quality("label_ids_not_in_table", unknown);

@@ -68,13 +68,6 @@ std::optional<SlicePairs> load_pairs(const std::string& path, const std::string&
   }
 }
 
-cv::Mat to_rgb8(const cv::Mat& m) {
-  cv::Mat out = m;
-  if (m.depth() == CV_16U) m.convertTo(out, CV_8U, 255.0 / 65535.0);
-  if (out.channels() == 1) cv::cvtColor(out, out, cv::COLOR_GRAY2RGB);
-  return out;
-}
-
 cv::Mat read_ct_hu(const CtSource& ct, const std::string& path) {
   cv::Mat raw = read_slice(path, ct.raw);
   if (raw.channels() != 1) throw InputError(cat(path, ": CT slice must be single-channel"));
@@ -106,7 +99,7 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
   if (!reg.overrides.empty()) stage_inputs.push_back(reg.overrides);
   StageRun run(config, "register", n, options,
                {"rgb", "register", "ct", "spacing_mm", "mask.hu_threshold", "mask.gel_colour",
-                "mask.gel_distance"},
+                "mask.gel_distance", "work.write_registered"},
                stage_inputs);
   ScopedOpenCvThreads opencv_threads(run.threads() > 1 ? 1 : cv::getNumThreads());
   const SliceRange range = run.range();
@@ -324,7 +317,15 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
     st.reset();
   }
   if (st && int(st->slices.size()) == n) {
-    make_directories(run.dir() + "/registered");
+    // The registered colour (work_layout.h registered_colour, the one implementation the later
+    // stages call too) is always computed for the QC overlay; written full size only with
+    // work.write_registered (issue 12: inspection copies cost disk, nothing reads them back).
+    StackInputs inputs;
+    inputs.rgb = files;
+    inputs.ct = ct_files;
+    inputs.transforms = *st;
+    const bool write_registered = config.work.write_registered;
+    if (write_registered) make_directories(run.dir() + "/registered");
     make_directories(run.dir() + "/qc");
     parallel_for(range.size(), run.threads(), [&](std::int64_t i) {
       const int k = range.first + int(i);
@@ -339,25 +340,24 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
       const std::string in = in_fp.str();
       const std::string out = registered_rgb_path(config, k);
       const std::string overlay = run.slice_path("qc/overlay", k);
-      if (run.up_to_date(k, in, {out, overlay})) {
+      std::vector<std::string> outs = {overlay};
+      if (write_registered) outs.push_back(out);
+      if (run.up_to_date(k, in, outs)) {
         run.skip(k);
         return;
       }
-      cv::Mat observed = to_rgb8(read_slice(files[std::size_t(k)].path, config.rgb.raw));
-      if (observed.cols != st->width || observed.rows != st->height)
-        throw InputError(cat(files[std::size_t(k)].path, ": slice is ", observed.cols, "x",
-                             observed.rows, ", the stack is ", st->width, "x", st->height));
-      cv::Mat registered;
-      cv::warpAffine(observed, registered, cv::Mat(rigid_matrix(t.rigid, st->centre())),
-                     observed.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP,
-                     cv::BORDER_REPLICATE);
-      write_image(out, registered);
+      if (!write_registered) {
+        std::error_code ec;  // a copy from an earlier run must not outlive its transform
+        fs::remove(out, ec);
+      }
+      const cv::Mat registered = registered_colour(config, inputs, k);
+      if (write_registered) write_image(out, registered);
       cv::Mat hu;
       if (ct && st->ct_to_rgb) hu = read_ct_hu(*config.ct, ct->path);
       write_image(overlay,
                   draw_ct_overlay(registered, hu, st->ct_to_rgb ? *st->ct_to_rgb : Similarity{},
                                   config.mask.hu_threshold));
-      run.done(k, in, {out, overlay}, observed.total() * observed.elemSize());
+      run.done(k, in, outs, registered.total() * registered.elemSize());
     });
   }
   run.add_bytes(bytes.load());

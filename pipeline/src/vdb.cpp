@@ -20,14 +20,13 @@ namespace fs = std::filesystem;
 StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
   if (!config.vdb.enabled || config.vdb_output.empty())
     throw ConfigError(cat(config.path, ": vdb.enabled is false: no OpenVDB export configured"));
-  std::vector<SliceFile> stack = stack_slices(config);
-  const int n = int(stack.size());
+  const StackInputs inputs = read_stack_inputs(config);
+  const int n = int(inputs.rgb.size());
   require_whole_stack(options, n, "vispack-vdb");
-  StackTransforms transforms = read_stack_transforms(config, n);
-  const cv::Size size(transforms.width, transforms.height);
+  const cv::Size size = inputs.size();
   const bool has_ct = config.ct.has_value(), has_labels = config.seg.has_value();
 
-  Fingerprint fp = intermediates_fingerprint(config, n);
+  Fingerprint fp = intermediates_fingerprint(config, inputs);
   fp.text(config.vdb_output);
   StageOptions unit = options;
   unit.slices.clear();
@@ -55,7 +54,7 @@ StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
   auto rgb_acc = rgb_grid->getAccessor();
   std::uint64_t active = 0, bytes = 0;
   for (int k = 0; k < n; ++k) {
-    const Intermediates in = read_intermediates(config, k, size);
+    const Intermediates in = read_intermediates(config, inputs, k);
     const cv::Mat &mask = in.mask, &rgb = in.rgb, &ct = in.ct, &labels = in.labels;
     bytes += in.bytes;
     for (int y = 0; y < size.height; ++y) {

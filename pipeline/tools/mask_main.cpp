@@ -6,7 +6,8 @@ int main(int argc, char** argv) {
       "vispack-mask", argc, argv,
       "Thresholds the CT into a body mask (largest component, holes filled, a head-holder cut "
       "off), carries it onto the registered colour grid and trims gel at its edge by colour. "
-      "Writes <work>/mask/mask_NNNN.png, overlay_NNNN.png, ct_NNNN.png (HU + 32768) and "
-      "report.json. Needs vispack-register's output.",
+      "Writes <work>/mask/mask_NNNN.png, overlay_NNNN.png (at most work.overlay_max_px) and "
+      "report.json (and ct_NNNN.png, HU + 32768, with work.write_ct). Needs vispack-register's "
+      "output.",
       vispack::pipeline::run_mask_stage);
 }

@@ -5,9 +5,10 @@ int main(int argc, char** argv) {
   return vispack::pipeline::stage_main(
       "vispack-register", argc, argv,
       "Registers the colour stack (rigid drift, jumps, black and duplicate slices) and aligns the "
-      "CT to it. Writes <work>/register/transforms.json, registered/rgb_NNNN.png and report.json. "
+      "CT to it. Writes <work>/register/transforms.json, qc/ overlays and report.json (and the "
+      "full-size registered/rgb_NNNN.png with work.write_registered). "
       "Sharded runs (--slices A:B) compute their pair records; the run that completes the set "
-      "chains them, and each shard writes its registered slices once transforms.json exists "
+      "chains them, and each shard writes its QC overlays (and copies) once transforms.json exists "
       "(run the shards twice).",
       vispack::pipeline::run_register_stage);
 }

@@ -62,7 +62,9 @@ json full_config() {
                   "output_frame": { "rotation_deg": 1.5, "dx_px": -2, "dy_px": 3 } },
     "mask": { "hu_threshold": -400, "opening_px": 1, "refine_gel": true, "gel_colour": [30, 60, 200],
               "gel_distance": 40 },
-    "pack": { "brick_edge": 64, "zstd_level": 3, "downsample": 1, "threads": 0 },
+    "pack": { "brick_edge": 64, "zstd_level": 3, "downsample": 1, "threads": 0,
+              "keep_outside_body": "ct", "crop_margin_px": 8 },
+    "work": { "write_registered": true, "write_ct": false, "overlay_max_px": 512 },
     "vdb": { "enabled": true }
   })");
 }
@@ -215,6 +217,13 @@ TEST(Config, FullConfigLoadsWithResolvedPaths) {
   ASSERT_TRUE(c.mask.gel_colour.has_value());
   EXPECT_EQ((*c.mask.gel_colour)[2], 200);
   EXPECT_EQ(c.pack.brick_edge, 64);
+  EXPECT_FALSE(c.pack.keep_colour_outside_body);
+  EXPECT_TRUE(c.pack.keep_ct_outside_body);
+  ASSERT_TRUE(c.pack.crop_margin_px.has_value());
+  EXPECT_EQ(*c.pack.crop_margin_px, 8);
+  EXPECT_TRUE(c.work.write_registered);
+  EXPECT_FALSE(c.work.write_ct);
+  EXPECT_EQ(c.work.overlay_max_px, 512);
 }
 
 TEST(Config, DefaultsForAMinimalConfig) {
@@ -232,6 +241,14 @@ TEST(Config, DefaultsForAMinimalConfig) {
   EXPECT_EQ(c.registration.method, "phase+ecc");
   EXPECT_DOUBLE_EQ(c.mask.hu_threshold, -400.0);
   EXPECT_EQ(c.pack.zstd_level, 3);
+  // Issue 12: by default colour and CT outside the body are cleared and nothing is cropped.
+  EXPECT_FALSE(c.pack.keep_colour_outside_body);
+  EXPECT_FALSE(c.pack.keep_ct_outside_body);
+  EXPECT_FALSE(c.pack.crop_margin_px.has_value());
+  // Issue 12: no full-size registered colour or CT copies; overlays at most 1024 px.
+  EXPECT_FALSE(c.work.write_registered);
+  EXPECT_FALSE(c.work.write_ct);
+  EXPECT_EQ(c.work.overlay_max_px, 1024);
   EXPECT_TRUE(c.vdb.enabled);
   j["vdb"] = {{"enabled", false}};
   EXPECT_EQ(load_config(write_config(dir, j, "minimal.json")).vdb_output, "");
@@ -286,6 +303,18 @@ TEST(Config, ErrorsNameTheKey) {
        "mask.gel_colour[2]"},
       {[](json& j) { j["pack"]["brick_edge"] = 48; }, "pack.brick_edge: 48 is not a power of two"},
       {[](json& j) { j["pack"]["zstd_level"] = 23; }, "pack.zstd_level: 23 is out of range"},
+      {[](json& j) { j["pack"]["keep_outside_body"] = true; },
+       "pack.keep_outside_body: must be a string, got a boolean"},
+      {[](json& j) { j["pack"]["keep_outside_body"] = "gel"; },
+       "pack.keep_outside_body: \"gel\" is not one of \"none\", \"colour\", \"ct\", \"all\""},
+      {[](json& j) { j["pack"]["crop_margin_px"] = -1; },
+       "pack.crop_margin_px: -1 is out of range"},
+      {[](json& j) { j["pack"]["crop_margin_px"] = 2.5; },
+       "pack.crop_margin_px: must be an integer, got a number"},
+      {[](json& j) { j["work"]["write_ct"] = "yes"; }, "work.write_ct: must be true or false"},
+      {[](json& j) { j["work"]["overlay_max_px"] = 8; },
+       "work.overlay_max_px: 8 is too small (0 = full size, else >= 16)"},
+      {[](json& j) { j["work"]["keep"] = true; }, "work.keep: unknown key"},
       {[](json& j) { j["vdb"]["enable"] = true; }, "vdb.enable: unknown key"},
       {[](json& j) { j["vdb_output"] = j["output"]; }, "vdb_output: must differ from output"},
   };

@@ -57,6 +57,12 @@ void expect_same(const vp::Config& a, const vp::Config& b) {
   EXPECT_EQ(a.mask.hu_threshold, b.mask.hu_threshold);
   EXPECT_EQ(a.mask.gel_colour, b.mask.gel_colour);
   EXPECT_EQ(a.pack.brick_edge, b.pack.brick_edge);
+  EXPECT_EQ(a.pack.keep_colour_outside_body, b.pack.keep_colour_outside_body);
+  EXPECT_EQ(a.pack.keep_ct_outside_body, b.pack.keep_ct_outside_body);
+  EXPECT_EQ(a.pack.crop_margin_px, b.pack.crop_margin_px);
+  EXPECT_EQ(a.work.write_registered, b.work.write_registered);
+  EXPECT_EQ(a.work.write_ct, b.work.write_ct);
+  EXPECT_EQ(a.work.overlay_max_px, b.work.overlay_max_px);
   EXPECT_EQ(a.vdb.enabled, b.vdb.enabled);
 }
 
@@ -76,6 +82,10 @@ TEST(ConfigWriter, RoundTripsThroughTheLoader) {
   a.registration.anchor = "ct";
   a.mask.gel_colour = std::array<int, 3>{30, 60, 200};
   a.pack.brick_edge = 32;
+  a.pack.keep_colour_outside_body = true;
+  a.pack.crop_margin_px = 12;
+  a.work.write_ct = true;
+  a.work.overlay_max_px = 0;
   a.ct->slice_offset = 0;
   vp::write_config(dir / "again.json", a);
   const vp::Config b = vp::load_config(dir / "again.json");

@@ -51,6 +51,15 @@ TEST(Pack, MetadataDefectsAndReproducibility) {
   po.seed = 7;
   po.quiet = true;
   make_phantom(dir.path(), po);
+  {
+    // The full-size registered colour and resampled CT are compared below as the register and
+    // mask stages write them (work.write_registered / write_ct; off by default): the stages
+    // rebuild them from the inputs, so this also checks that the copies agree.
+    auto j = nlohmann::json::parse(read_file(dir / "config.json"));
+    j["work"]["write_registered"] = true;
+    j["work"]["write_ct"] = true;
+    write_file_atomic(dir / "config.json", j.dump());
+  }
   Config config = load_config(dir / "config.json");
   RunOptions options;
   options.quiet = true;
@@ -77,7 +86,8 @@ TEST(Pack, MetadataDefectsAndReproducibility) {
   // Agreement of the channels with truth/ is tested on the small phantom, with tolerances
   // derived from the stage goals, in test_truth.cpp (the tiny phantom is too coarse for that).
   // Here: pack only packs, so every voxel equals the intermediates it read (docs/ARCHITECTURE.md
-  // "Work folder layout"): colour = registered slice, alpha = mask, HU = ct png - 32768, labels.
+  // "Work folder layout"): colour = registered slice, alpha = mask, HU = ct png - 32768, labels;
+  // outside the body (mask 0) colour 0 and HU -1024 (pack.keep_outside_body default "none").
   auto meta = reader.metadata();
   std::uint64_t wrong_rgba = 0, wrong_ct = 0, wrong_labels = 0, body = 0;
   for (int k = 0; k < dims[2]; ++k) {
@@ -85,13 +95,13 @@ TEST(Pack, MetadataDefectsAndReproducibility) {
     for (int y = 0; y < dims[1]; ++y)
       for (int x = 0; x < dims[0]; ++x) {
         const std::size_t i = (std::size_t(k) * dims[1] + y) * dims[0] + x;
-        const cv::Vec3b c = s.rgb.at<cv::Vec3b>(y, x);
         const std::uint8_t a = s.mask.at<std::uint8_t>(y, x);
+        const cv::Vec3b c = a ? s.rgb.at<cv::Vec3b>(y, x) : cv::Vec3b(0, 0, 0);
         body += a != 0;
         if (rgba[4 * i] != c[0] || rgba[4 * i + 1] != c[1] || rgba[4 * i + 2] != c[2] ||
             rgba[4 * i + 3] != a)
           ++wrong_rgba;
-        if (ct[i] != int(s.ct.at<std::uint16_t>(y, x)) - 32768) ++wrong_ct;
+        if (ct[i] != (a ? int(s.ct.at<std::uint16_t>(y, x)) - 32768 : -1024)) ++wrong_ct;
         if (labels8[i] != s.labels.at<std::uint16_t>(y, x)) ++wrong_labels;
       }
   }
@@ -118,9 +128,10 @@ TEST(Pack, MetadataDefectsAndReproducibility) {
   run_pipeline(config, again);
   EXPECT_TRUE(read_file(config.output) == before);
 
-  // Downsampling by 2: dims halve, spacing doubles; colour, alpha and HU are the 2x2 block means
-  // of the full-resolution intermediates (within 1 for rounding), labels the block's majority
-  // (checked where 3 or 4 of the 4 agree; elsewhere one of the block's IDs).
+  // Downsampling by 2: dims halve, spacing doubles; alpha and HU are the 2x2 block means of the
+  // full-resolution intermediates (within 1 for rounding; HU -1024 outside the body), colour
+  // their mask-weighted mean (the plain mean, 0, where the block has no body), labels the block's
+  // majority (checked where 3 or 4 of the 4 agree; elsewhere one of the block's IDs).
   auto j = nlohmann::json::parse(read_file(dir / "config.json"));
   j["pack"]["downsample"] = 2;
   write_file_atomic(dir / "config.json", j.dump());
@@ -149,15 +160,19 @@ TEST(Pack, MetadataDefectsAndReproducibility) {
         std::map<int, int> votes;
         for (int dy = 0; dy < 2; ++dy)
           for (int dx = 0; dx < 2; ++dx) {
+            const std::uint8_t a = s.mask.at<std::uint8_t>(2 * y + dy, 2 * x + dx);
             const cv::Vec3b c = s.rgb.at<cv::Vec3b>(2 * y + dy, 2 * x + dx);
             for (int ch = 0; ch < 3; ++ch)
-              sum[ch] += c[ch];
-            sum[3] += s.mask.at<std::uint8_t>(2 * y + dy, 2 * x + dx);
-            hu += int(s.ct.at<std::uint16_t>(2 * y + dy, 2 * x + dx)) - 32768;
+              sum[ch] += double(c[ch]) * a;
+            sum[3] += a;
+            hu += a ? int(s.ct.at<std::uint16_t>(2 * y + dy, 2 * x + dx)) - 32768 : -1024;
             ++votes[s.labels.at<std::uint16_t>(2 * y + dy, 2 * x + dx)];
           }
-        for (int ch = 0; ch < 4; ++ch)
-          if (std::abs(rgba2[4 * i + ch] - sum[ch] / 4) > 1.0) ++off_mean;
+        for (int ch = 0; ch < 3; ++ch) {
+          const double expected = sum[3] > 0 ? sum[ch] / sum[3] : 0.0;
+          if (std::abs(rgba2[4 * i + ch] - expected) > 1.0) ++off_mean;
+        }
+        if (std::abs(rgba2[4 * i + 3] - sum[3] / 4) > 1.0) ++off_mean;
         if (std::abs(ct2[i] - hu / 4) > 1.0) ++off_ct;
         if (!votes.count(labels2[i])) ++not_in_block;
         for (const auto& [id, count] : votes)

@@ -414,8 +414,14 @@ TEST(RegisterStage, ShardedRunMatchesUnsharded) {
   po.quiet = true;
   const vph::PhantomSummary summary = vph::make_phantom(dir.path(), po);
   ASSERT_GE(summary.slices, 8);
-  // A second config with its own work folder, same inputs.
+  // Both configs write the full-size registered slices (work.write_registered; off by default),
+  // which this test compares. A second config with its own work folder, same inputs.
   nlohmann::json cj = nlohmann::json::parse(vispack::read_file(dir / "config.json"));
+  cj["work"]["write_registered"] = true;
+  {
+    std::ofstream out(dir / "config.json");
+    out << cj.dump(1);
+  }
   cj["work_dir"] = "work-sharded";
   {
     std::ofstream out(dir / "sharded.json");

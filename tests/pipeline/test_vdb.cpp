@@ -23,6 +23,15 @@ TEST(Vdb, GridsValuesAndVdbPrint) {
   po.seed = 6;
   po.quiet = true;
   make_phantom(dir.path(), po);
+  {
+    // The full-size registered colour and resampled CT are compared below as the register and
+    // mask stages write them (work.write_registered / write_ct; off by default): the stages
+    // rebuild them from the inputs, so this also checks that the copies agree.
+    auto j = nlohmann::json::parse(read_file(dir / "config.json"));
+    j["work"]["write_registered"] = true;
+    j["work"]["write_ct"] = true;
+    write_file_atomic(dir / "config.json", j.dump());
+  }
   Config config = load_config(dir / "config.json");
   RunOptions options;
   options.quiet = true;

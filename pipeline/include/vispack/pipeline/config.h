@@ -83,6 +83,28 @@ struct PackOptions {
   int zstd_level = 3;   // 0 = raw bricks, 1..22
   int downsample = 1;   // integer factor applied to x and y of the output grid
   int threads = 0;      // 0 = all cores
+  // What the packed file keeps outside the body (voxels whose work/mask/mask_NNNN.png is 0),
+  // config key pack.keep_outside_body: "none" (default) stores colour (r, g, b) = 0 and CT =
+  // −1024 HU (air) there, so that bricks of gel are uniform and cost nothing; "colour", "ct" or
+  // "all" keep that channel as registered / resampled. Alpha and labels are never changed.
+  bool keep_colour_outside_body = false;
+  bool keep_ct_outside_body = false;
+  // pack.crop_margin_px: when set (>= 0), x and y of the packed volume are cropped to the union
+  // over the stack of the body masks' bounding boxes plus this margin in output-grid pixels
+  // (before downsampling), clamped to the frame; origin_mm moves with the crop. Unset (default):
+  // the whole registered frame is packed. z is never cropped.
+  std::optional<int> crop_margin_px;
+};
+
+// What the stages write into the work folder besides what a person inspects (masks, overlays,
+// label slices, transforms, QC), config section "work" (issue 12). The later stages never read
+// the full-size registered colour or resampled CT back: they resample them from the input slices
+// and transforms.json (work_layout.h), so these switches change only what is on disk.
+struct WorkOptions {
+  bool write_registered = false;  // <work>/register/registered/rgb_NNNN.png (full size)
+  bool write_ct = false;          // <work>/mask/ct_NNNN.png (16-bit HU + 32768, full size)
+  int overlay_max_px = 1024;      // <work>/mask/overlay_NNNN.png: longer side at most this
+                                  // (downsampled by block mean); 0 = full size
 };
 
 struct VdbOptions {
@@ -102,6 +124,7 @@ struct Config {
   RegisterOptions registration;
   MaskOptions mask;
   PackOptions pack;
+  WorkOptions work;
   VdbOptions vdb;
   nlohmann::json raw_json;  // the file as read, for hashing sections into reports
 };

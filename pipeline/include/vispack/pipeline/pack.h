@@ -7,7 +7,16 @@
 //   ct     int16 HU (work/mask/ct_NNNN.png, stored HU + 32768), only when the config has "ct"
 //   labels uint16 IDs (work/labels/labels_NNNN.png), only when the config has "seg"; with
 //          downsampling, the most frequent ID of each block (ties: smaller ID), never a blend
-// Colour and CT are downsampled by the block mean (cv::INTER_AREA).
+// Outside the body (mask 0) colour is stored as 0 and CT as −1024 HU unless pack.keep_outside_body
+// says to keep them (read_intermediates in work_layout.h does it, for pack and vdb alike).
+// Colour is downsampled by the mask-weighted block mean (a gel pixel never darkens or tints the
+// tissue of its block; the plain mean where the block has no body), CT by the block mean
+// (cv::INTER_AREA).
+// Crop (pack.crop_margin_px set): x and y are cut to the union of the body masks' bounding boxes
+// over the stack plus the margin, clamped to the frame, its corners moved outwards to multiples
+// of the downsampling factor (so the cropped grid is a sub-box of the uncropped one); origin_mm
+// moves by the box's corner; metadata extra.crop records margin, box (full-resolution output
+// pixels: x, y, width, height) and the uncropped dims. The masks are read once more for it.
 // Streaming: one slice of each channel is read, converted and appended at a time; the format
 // Writer keeps one slab of brick_edge slices, so memory stays bounded by one brick row.
 // Metadata ("extra"): label table (palette.json, or the IDs present when there is none), missing

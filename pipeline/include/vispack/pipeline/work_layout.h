@@ -23,9 +23,11 @@ std::string slice_output_path(const Config& config, const std::string& stage,
                               const std::string& prefix, int index, const std::string& ext = "png");
 // <work>/register/transforms.json
 std::string transforms_path(const Config& config);
-// <work>/register/registered/rgb_NNNN.png (the registered colour slice k)
+// <work>/register/registered/rgb_NNNN.png (the registered colour slice k; written only with
+// work.write_registered, for inspection: no stage reads it back)
 std::string registered_rgb_path(const Config& config, int index);
-// <work>/mask/mask_NNNN.png (0/255), <work>/mask/ct_NNNN.png (16-bit, HU + 32768),
+// <work>/mask/mask_NNNN.png (0/255), <work>/mask/ct_NNNN.png (16-bit, HU + 32768; written only
+// with work.write_ct, for inspection),
 // <work>/labels/labels_NNNN.png (16-bit IDs)
 std::string mask_path(const Config& config, int index);
 std::string mask_ct_path(const Config& config, int index);
@@ -39,24 +41,75 @@ std::vector<SliceFile> stack_slices(const Config& config);
 // vispack-register first") or covers another number of slices ("rerun vispack-register").
 StackTransforms read_stack_transforms(const Config& config, int slice_count);
 
-// A fingerprint of every intermediate a whole-volume stage reads (pack, vdb): transforms.json,
-// then per slice the registered colour, the mask, the resampled CT (when CT is configured) and the
-// labels (when segmentation is configured). Callers add their own inputs and options to it.
-Fingerprint intermediates_fingerprint(const Config& config, int slice_count);
+// What the later stages need to rebuild a slice's registered colour and resampled CT from the
+// inputs (issue 12: those full-size images are not written by default, config "work").
+struct StackInputs {
+  std::vector<SliceFile> rgb;  // stack_slices(config): index k = output slice k
+  std::vector<SliceFile> ct;   // list_slices(*config.ct), empty without CT
+  StackTransforms transforms;  // <work>/register/transforms.json, one per colour slice
+  cv::Size size() const { return {transforms.width, transforms.height}; }
+};
+// Lists the slice folders and reads transforms.json (read_stack_transforms: same errors).
+StackInputs read_stack_inputs(const Config& config);
 
-// One output slice's intermediates, as the mask and labels stages wrote them, on the output grid.
+// The registered colour slice k (CV_8UC3, RGB) on the output grid: input slice k (16-bit scaled
+// to 8, grey expanded to RGB) resampled with its transform (bilinear, border replicated; the
+// convention of docs/ARCHITECTURE.md "Slice transforms"). The one implementation: register
+// writes it when work.write_registered, mask, pack and vdb call it. Deterministic: the same
+// inputs give the same bytes. Throws InputError naming the slice when its size differs.
+cv::Mat registered_colour(const Config& config, const StackInputs& inputs, int index);
+
+// CT slice k + ct.slice_offset in HU (CV_32F, CT resolution) and the map from output pixels to
+// its pixels (transforms.h output_to_ct with transforms.json's ct_to_rgb, else the config's
+// definition). Without CT, or when the CT stack has no slice for k, `hu` is empty.
+struct CtSlice {
+  cv::Mat hu;
+  cv::Matx23d out_to_ct{1, 0, 0, 0, 1, 0};
+  std::string path;  // the CT file; empty when none
+};
+CtSlice read_ct_slice(const Config& config, const StackInputs& inputs, int index);
+
+// The CT of output slice k on the output grid as work/mask/ct_NNNN.png stores it (CV_16UC1,
+// HU + 32768; mask.h resample_ct, encode_hu16): the one implementation the mask stage writes
+// (work.write_ct) and pack and vdb read. A slice beyond the CT stack is −1024 HU (air)
+// everywhere. `ct` (optional) is the slice already read.
+cv::Mat resampled_ct16(const Config& config, const StackInputs& inputs, int index,
+                       const CtSlice* ct = nullptr);
+
+// A fingerprint of everything a whole-volume stage reads (pack, vdb): transforms.json, then per
+// slice the input colour slice, the mask, the CT slice (when CT is configured) and the labels
+// (when segmentation is configured). Callers add their own inputs and options to it.
+Fingerprint intermediates_fingerprint(const Config& config, const StackInputs& inputs);
+
+// One output slice's intermediates, as the mask and labels stages wrote them, on the output grid,
+// with what lies outside the body cleared as the config asks (pack.keep_outside_body).
 struct Intermediates {
-  cv::Mat rgb;              // CV_8UC3, the registered colour slice
+  cv::Mat rgb;              // CV_8UC3, the registered colour slice; (0, 0, 0) where mask == 0
+                            // unless config.pack.keep_colour_outside_body
   cv::Mat mask;             // CV_8UC1, 0/255 body mask
-  cv::Mat ct;               // CV_16UC1, HU + 32768 (empty without CT)
+  cv::Mat ct;               // CV_16UC1, HU + 32768 (empty without CT); kOutsideBodyCt16 (−1024
+                            // HU, air) where mask == 0 unless config.pack.keep_ct_outside_body
   cv::Mat labels;           // CV_16UC1, label IDs (empty without segmentation)
-  std::uint64_t bytes = 0;  // decoded bytes read (for throughput reports)
+  std::uint64_t bytes = 0;  // decoded bytes of the slices above (for throughput reports)
 };
 
-// Reads the intermediates of stack slice `index`, each checked to be `size` and of its type.
-// Reads ct only when the config has CT and labels only when it has segmentation. Throws
-// InputError naming the file when one is missing ("run the earlier stages first") or has the
-// wrong size or pixel type.
-Intermediates read_intermediates(const Config& config, int index, cv::Size size);
+// The CT value stored outside the body when it is cleared: −1024 HU (air) as HU + 32768.
+constexpr std::uint16_t kOutsideBodyCt16 = 32768 - 1024;
+
+// The intermediates of stack slice `index` on the output grid (inputs.size()): mask and labels
+// read from the work folder, each checked for size and type; colour and CT rebuilt from the
+// inputs (registered_colour, resampled_ct16), whether or not the work folder holds copies.
+// CT only when the config has CT and labels only when it has segmentation. Outside the
+// body mask (mask == 0) colour becomes 0 and CT −1024 HU unless config.pack says to keep them
+// (docs/ARCHITECTURE.md "What the packed file stores"): this is the one place where that
+// happens, so the packed file and the OpenVDB export read the same values. Throws InputError
+// naming the file when one is missing ("run the earlier stages first") or has the wrong size or
+// pixel type.
+Intermediates read_intermediates(const Config& config, const StackInputs& inputs, int index);
+
+// The union over stack slices [0, slice_count) of the bounding boxes of the body masks
+// (<work>/mask/mask_NNNN.png, non-zero pixels), in output-grid pixels; an empty rect when no
+// slice has body. Throws InputError as read_intermediates does for a missing or wrong mask.
+cv::Rect body_bounds(const Config& config, int slice_count, cv::Size size);
 
 }  // namespace vispack::pipeline

@@ -1,0 +1,98 @@
+#!/usr/bin/env bash
+# Issue 12, "store only what a scene needs": stored size of the packed file against the OpenVDB
+# export and `zstd -3` of the raw level-0 bytes, and the work folder against the input, at the
+# real slice size. Usage: scripts/bench/store_size.sh BIN_DIR WORK_DIR [SLICES] [OUT.json]
+#   BIN_DIR   folder with vispack-phantom, vispack-run, vispack-pack, vispack-extract
+#   WORK_DIR  scratch folder (the phantom is generated there once per slice count)
+#   SLICES    slices of the `vhp` phantom (2048x1216, colour as planar .raw), default 8
+# Prints a Markdown table; with OUT.json also writes the numbers as JSON. Needs zstd, python3.
+# Each variant is packed by `vispack-pack --force` from the same intermediates:
+#   default   pack.keep_outside_body "none" (colour 0, CT -1024 HU outside the body), no crop
+#   keep      "all" (the gel as registered: what the file held before issue 12)
+#   crop      default + pack.crop_margin_px 16
+# raw level-0 bytes: every channel of the `keep` file at level 0 as vispack-extract writes it
+# (NRRD, raw encoding), concatenated; `zstd -3 -T1` of those bytes is the peer.
+# Work folder: with the defaults, and with work.write_registered + work.write_ct (a second run in
+# its own work folder, whose packed file must be byte-identical to the default one).
+set -euo pipefail
+bin=${1:?BIN_DIR}
+work=${2:?WORK_DIR}
+slices=${3:-8}
+json_out=${4:-}
+command -v zstd >/dev/null || { echo "store_size.sh: zstd is missing" >&2; exit 1; }
+mkdir -p "$work"
+work=$(realpath "$work")
+dir=$work/vhp-$slices
+if [[ ! -f $dir/.complete ]]; then
+  rm -rf "$dir"
+  "$bin/vispack-phantom" --out "$dir" --preset vhp --slices "$slices" --rgb-raw --seed 1 --quiet
+  touch "$dir/.complete"
+fi
+cfg=$dir/config.json
+"$bin/vispack-run" "$cfg" --quiet >/dev/null
+
+# variant NAME EDIT: the phantom's config edited by the Python statement EDIT on `j`, written as
+# NAME.json with its own outputs out/NAME.vpk and out/NAME.vdb.
+variant() {
+  python3 -c '
+import json, sys
+src, dst, name, edit = sys.argv[1:5]
+j = json.load(open(src))
+j["output"] = "out/%s.vpk" % name
+j["vdb_output"] = "out/%s.vdb" % name
+exec(edit)
+json.dump(j, open(dst, "w"), indent=2)' "$cfg" "$dir/$1.json" "$1" "$2"
+}
+variant keep 'j["pack"]["keep_outside_body"] = "all"'
+"$bin/vispack-pack" --config "$dir/keep.json" --force --quiet
+variant crop 'j["pack"]["crop_margin_px"] = 16'
+"$bin/vispack-pack" --config "$dir/crop.json" --force --quiet
+variant copies 'j["work_dir"] = "work-copies"; j.setdefault("work", {}).update({"write_registered": True, "write_ct": True})'
+"$bin/vispack-run" "$dir/copies.json" --quiet --to pack >/dev/null
+cmp -s "$dir/out/copies.vpk" "$dir/out/volume.vpk" && identical=1 || identical=0
+
+raw=$work/raw-$slices
+rm -rf "$raw" && mkdir -p "$raw"
+for ch in rgba ct labels; do
+  "$bin/vispack-extract" "$dir/out/keep.vpk" --channel "$ch" -o "$raw/$ch.nrrd" >/dev/null
+done
+raw_bytes=$(cat "$raw"/*.nrrd | wc -c)
+zstd_bytes=$(cat "$raw"/*.nrrd | zstd -3 -T1 -c | wc -c)
+rm -rf "$raw"
+size() { stat -c %s "$1"; }
+du_bytes() { du -sb "$@" | awk '{s += $1} END {print s}'; }
+
+python3 -c '
+import json, sys
+keys = sys.argv[2::2]
+vals = [int(v) for v in sys.argv[3::2]]
+r = dict(zip(keys, vals))
+r["width"], r["height"] = 2048, 1216
+r["packed_identical_with_copies"] = bool(r.pop("identical"))
+r["vpk_over_vdb"] = r["vpk_default"] / r["vdb"]
+r["vpk_over_zstd"] = r["vpk_default"] / r["zstd3_raw_level0"]
+r["work_over_input"] = r["work_bytes"] / r["input_bytes"]
+r["work_with_copies_over_input"] = r["work_with_copies_bytes"] / r["input_bytes"]
+mb = lambda b: "%.1f MB" % (b / 1e6)
+print("| what (vhp phantom, 2048x1216, %d slices) | bytes | ratio |" % r["slices"])
+print("|---|---|---|")
+print("| packed, default (outside body cleared) | %s | %.2fx the OpenVDB export, %.2fx zstd -3 of the raw level-0 bytes |"
+      % (mb(r["vpk_default"]), r["vpk_over_vdb"], r["vpk_over_zstd"]))
+print("| packed, crop_margin_px 16 | %s | %.2fx the default |" % (mb(r["vpk_crop"]), r["vpk_crop"] / r["vpk_default"]))
+print("| packed, keep_outside_body all (before issue 12) | %s | %.2fx the OpenVDB export |" % (mb(r["vpk_keep"]), r["vpk_keep"] / r["vdb"]))
+print("| OpenVDB export (body voxels only) | %s | |" % mb(r["vdb"]))
+print("| raw level-0 bytes (keep file, all channels) | %s | |" % mb(r["raw_level0"]))
+print("| zstd -3 -T1 of the raw level-0 bytes | %s | |" % mb(r["zstd3_raw_level0"]))
+print("| input folders (rgb .raw, ct, seg) | %s | |" % mb(r["input_bytes"]))
+print("| work folder, defaults | %s | %.1f %% of the input |" % (mb(r["work_bytes"]), 100 * r["work_over_input"]))
+print("| work folder, write_registered + write_ct | %s | %.1f %% of the input; packed file byte-identical: %s |"
+      % (mb(r["work_with_copies_bytes"]), 100 * r["work_with_copies_over_input"],
+         "yes" if r["packed_identical_with_copies"] else "NO"))
+if sys.argv[1]:
+    json.dump(r, open(sys.argv[1], "w"), indent=1)
+' "$json_out" slices "$slices" vpk_default "$(size "$dir/out/volume.vpk")" \
+  vpk_keep "$(size "$dir/out/keep.vpk")" vpk_crop "$(size "$dir/out/crop.vpk")" \
+  vdb "$(size "$dir/out/volume.vdb")" raw_level0 "$raw_bytes" zstd3_raw_level0 "$zstd_bytes" \
+  input_bytes "$(du_bytes "$dir/rgb" "$dir/ct" "$dir/seg")" work_bytes "$(du_bytes "$dir/work")" \
+  work_with_copies_bytes "$(du_bytes "$dir/work-copies")" identical "$identical"
+[[ $identical == 1 ]] || { echo "store_size.sh: the packed file differs with the work copies" >&2; exit 1; }
