@@ -16,6 +16,9 @@ packages=(
   openimageio-tools libopenvdb-tools zstd python3-numpy python3-zstandard
   # sample data fetch
   dpkg-dev xz-utils
+  # the cluster test (tests/cluster/slurm_test.sh): a one-node SLURM, its authentication, and
+  # Snakemake as the other front end (scripts/vispack-slurm, workflow/Snakefile)
+  slurm-wlm munge snakemake
 )
 if [[ "${1:-}" == "--bench" ]]; then
   packages+=(gnuplot-nox elastix python3-vtk9 hyperfine valgrind time python3-matplotlib linux-perf)
