@@ -11,6 +11,7 @@
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
 #include "vispack/common/hash.h"
+#include "vispack/common/parallel.h"
 #include "vispack/common/test_pause.h"
 #include "vispack/format/downsample.h"
 #include "vispack/format/writer.h"
@@ -405,6 +406,19 @@ std::vector<format::EncodedBrick> read_slab_file(const std::string& path,
   return bricks;
 }
 
+// The bricks of channel c in a slab's brick list (channel, then by, then bx).
+struct BrickSpan {
+  const format::EncodedBrick* first;
+  const format::EncodedBrick* last;
+  const format::EncodedBrick* begin() const { return first; }
+  const format::EncodedBrick* end() const { return last; }
+};
+BrickSpan bricks_of_channel(const std::vector<format::EncodedBrick>& bricks, std::size_t c,
+                            std::int64_t per_channel) {
+  const format::EncodedBrick* first = bricks.data() + c * std::size_t(per_channel);
+  return {first, first + per_channel};
+}
+
 std::string slab_path(const Config& config, std::int64_t bz) {
   return slice_output_path(config, "pack-slabs", "slab", int(bz), "vpkslab");
 }
@@ -517,7 +531,8 @@ StageResult run_pack_merge(const Config& config, const StageOptions& options) {
   const std::int64_t gx = (nx + e - 1) / e, gy = (ny + e - 1) / e;
   std::set<std::uint16_t> ids_seen;
   std::uint64_t bytes = 0;
-  std::vector<std::uint8_t> brick;
+  const int threads = resolve_threads(plan.wo.threads);
+  SliceBuffers buffers(plan, int(std::min<std::int64_t>(e, plan.n)));
   for (std::int64_t bz = 0; bz < slabs; ++bz) {
     const std::string path = slab_path(config, bz);
     const auto slices = slab_slices(plan, bz);
@@ -528,7 +543,7 @@ StageResult run_pack_merge(const Config& config, const StageOptions& options) {
     bytes += fs::file_size(path);
     const int nzv = slices.second - slices.first;
     // Level 0 of the slab back from its bricks (lossless), in append_slice's convention.
-    SliceBuffers buffers(plan, nzv);
+    // (One buffer for every slab, allocated once: the last slab may use fewer slices.)
     for (std::size_t c = 0; c < stored.size(); ++c) {
       const std::size_t vb = format::channel_type_bytes(stored[c].type);
       const bool widen = stored[c].type == format::ChannelType::kUint8;  // labels as uint16
@@ -537,15 +552,21 @@ StageResult run_pack_merge(const Config& config, const StageOptions& options) {
                                  : reinterpret_cast<std::uint8_t*>(
                                        plan.has_ct && c == 1 ? static_cast<void*>(buffers.ct.data())
                                                              : buffers.labels.data());
-      brick.resize(std::size_t(e * e * e) * vb);
-      for (std::int64_t by = 0; by < gy; ++by)
-        for (std::int64_t bx = 0; bx < gx; ++bx) {
-          const auto& b = bricks[std::size_t((std::int64_t(c) * gy + by) * gx + bx)];
+      for (const auto& b : bricks_of_channel(bricks, c, gx * gy))
+        for (std::uint32_t id : b.labels)
+          if (id) ids_seen.insert(std::uint16_t(id));
+      // Bricks decode in parallel (each fills its own part of the slices); a worker per thread
+      // with its own brick buffer.
+      const std::int64_t count = gx * gy;
+      const int workers = int(std::min<std::int64_t>(threads, count));
+      parallel_for(workers, workers, [&](std::int64_t w) {
+        std::vector<std::uint8_t> brick(std::size_t(e * e * e) * vb);
+        for (std::int64_t i = w; i < count; i += workers) {
+          const std::int64_t bx = i % gx, by = i / gx;
+          const auto& b = bricks[std::size_t(std::int64_t(c) * count + i)];
           format::decode_encoded_brick(
               b, stored[c].type, int(e), brick.data(),
               cat(path, ": brick (", bx, ",", by, ") of channel ", stored[c].name));
-          for (std::uint32_t id : b.labels)
-            if (id) ids_seen.insert(std::uint16_t(id));
           const std::int64_t nxv = std::min(e, nx - bx * e), nyv = std::min(e, ny - by * e);
           for (int z = 0; z < nzv; ++z)
             for (std::int64_t y = 0; y < nyv; ++y) {
@@ -563,6 +584,7 @@ StageResult run_pack_merge(const Config& config, const StageOptions& options) {
               }
             }
         }
+      });
     }
     writer.provide_level0_slab(bz, std::move(bricks));
     for (int z = 0; z < nzv; ++z)
