@@ -18,6 +18,9 @@ packages=(
   python3-numpy python3-zstandard python3-xxhash python3-dask
   # sample data fetch
   dpkg-dev xz-utils
+  # the cluster test (tests/cluster/slurm_test.sh): a one-node SLURM, its authentication, and
+  # Snakemake as the other front end (scripts/vispack-slurm, workflow/Snakefile)
+  slurm-wlm munge snakemake
 )
 if [[ "${1:-}" == "--bench" ]]; then
   packages+=(gnuplot-nox elastix python3-vtk9 hyperfine valgrind time python3-matplotlib linux-perf)

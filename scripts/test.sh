@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Runs the whole test suite: installs what is missing, fetches the real sample data, checks the
 # C++ formatting (scripts/check-format.sh), builds Release,
-# runs ctest (unit, command-line and headless image tests), then the sanitizer build (ASan+UBSan)
+# runs ctest (unit, command-line and headless image tests), the cluster tests (a one-node SLURM,
+# tests/cluster/; they skip where not root), then the sanitizer build (ASan+UBSan)
 # of every test but the benchmarks, short fuzz runs and the quick benchmark. Both builds use
 # -Werror (VISPACK_WERROR). Prints each step's time and the total.
 # Usage: scripts/test.sh [--sanitize-only] [--no-sanitize] [--no-fuzz] [--no-bench]
@@ -15,7 +16,7 @@ for arg in "$@"; do
     --no-sanitize) sanitize=0 ;;
     --no-fuzz) fuzz=0 ;;
     --no-bench) bench=0 ;;
-    -h|--help) sed -n '2,7p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,8p' "$0"; exit 0 ;;
     *) echo "test.sh: unknown option $arg" >&2; exit 2 ;;
   esac
 done
@@ -63,8 +64,11 @@ scripts/check-format.sh || failed=1
 if [[ $main == 1 ]]; then
   stamp "Building (Release) into build/"
   scripts/build.sh "$root/build" -DVISPACK_WERROR=ON
-  stamp "Running ctest"
-  (cd build && ctest --output-on-failure -j "$jobs" --timeout 600) || failed=1
+  stamp "Running ctest (all but the cluster tests)"
+  (cd build && ctest --output-on-failure -j "$jobs" --timeout 600 -LE cluster) || failed=1
+  # Apart: the real-SLURM test starts daemons and times the cluster paths (tests/cluster/).
+  stamp "Cluster tests: one-node SLURM and Snakemake against vispack-run (ctest -L cluster)"
+  (cd build && ctest --output-on-failure --timeout 600 -L cluster) || failed=1
 fi
 
 if [[ $sanitize == 1 ]]; then

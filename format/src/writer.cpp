@@ -10,6 +10,7 @@
 #include <deque>
 #include <exception>
 #include <limits>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <stdexcept>
@@ -212,7 +213,225 @@ void validate(const WriterOptions& o) {
   }
 }
 
+// Where the bricks of one slab come from: slab `bz` of level `level` (its first `nzv` slices
+// valid), in a level of dx * dy voxels per slice and gx * gy bricks per slab and channel.
+struct BrickSource {
+  int level = 0;
+  std::int64_t bz = 0;
+  int nzv = 0;
+  std::int64_t gx = 0, gy = 0, dx = 0, dy = 0;
+};
+
+// Makes brick `i` (index order within the slab: channel, by, bx) of `src` from the slab buffers
+// (per stored channel: the slab's slices): gathers and pads it, computes its stats and encodes it
+// (SPEC.md "Codecs"). The one encoder of the Writer and encode_level0_slab.
+void encode_brick(const WriterOptions& opt, const std::vector<ChannelSpec>& stored,
+                  const std::string& path, const BrickSource& source,
+                  const std::vector<std::vector<std::uint8_t>>& slabs, std::int64_t i,
+                  WorkerScratch& scratch, BrickResult& r) {
+  const int L = source.level;
+  const std::int64_t per_channel = source.gx * source.gy;
+  const int c = int(i / per_channel);
+  const std::int64_t bx = (i % per_channel) % source.gx, by = (i % per_channel) / source.gx;
+  const std::int64_t bz = source.bz;
+  const int nzv = source.nzv;
+  const std::int64_t e = opt.brick_edge;
+  const ChannelType type = stored[c].type;
+  const std::size_t bytes = channel_type_bytes(type);
+  const std::int64_t dx = source.dx, dy = source.dy;
+  const std::int64_t x0 = bx * e, y0 = by * e;
+  const std::int64_t nxv = std::min(e, dx - x0), nyv = std::min(e, dy - y0);
+  const std::size_t row_bytes = std::size_t(e) * bytes;
+  const std::size_t plane_bytes = row_bytes * std::size_t(e);
+  const std::size_t brick_bytes = plane_bytes * std::size_t(e);
+  if (scratch.brick.size() < brick_bytes) scratch.brick.resize(brick_bytes);
+  std::uint8_t* buf = scratch.brick.data();
+  const std::uint8_t* slab = slabs[std::size_t(c)].data();
+  for (std::int64_t z = 0; z < e; ++z) {
+    std::uint8_t* plane = buf + std::size_t(z) * plane_bytes;
+    if (z >= nzv) {
+      std::memcpy(plane, buf + std::size_t(nzv - 1) * plane_bytes, plane_bytes);
+      continue;
+    }
+    for (std::int64_t y = 0; y < e; ++y) {
+      std::uint8_t* dst = plane + std::size_t(y) * row_bytes;
+      if (y >= nyv) {
+        std::memcpy(dst, plane + std::size_t(nyv - 1) * row_bytes, row_bytes);
+        continue;
+      }
+      const std::uint8_t* src = slab + ((std::size_t(z) * dy + (y0 + y)) * dx + x0) * bytes;
+      std::memcpy(dst, src, std::size_t(nxv) * bytes);
+      for (std::int64_t x = nxv; x < e; ++x) {
+        std::memcpy(dst + std::size_t(x) * bytes, src + std::size_t(nxv - 1) * bytes, bytes);
+      }
+    }
+  }
+  IndexEntry& en = r.entry;
+  en.bx = std::uint32_t(bx);
+  en.by = std::uint32_t(by);
+  en.bz = std::uint32_t(bz);
+  en.level = std::uint8_t(L);
+  en.channel = std::uint8_t(c);
+  brick_stats(type, buf, brick_bytes / bytes, en, r.labels, scratch);
+  if (std::memcmp(en.min, en.max, 8) == 0) {
+    en.codec = std::uint8_t(Codec::kUniform);
+    return;  // offset, size, checksum stay 0
+  }
+  en.codec = std::uint8_t(Codec::kRaw);
+  const std::uint8_t* stored_bytes = buf;
+  std::size_t stored_size = brick_bytes;
+  if (opt.compress) {
+    const std::size_t bound = ZSTD_compressBound(brick_bytes);
+    if (scratch.out.size() < bound) scratch.out.resize(bound);
+    std::size_t n = ZSTD_compressCCtx(scratch.cctx, scratch.out.data(), bound, buf, brick_bytes,
+                                      opt.zstd_level);
+    if (ZSTD_isError(n)) {
+      throw Error(cat(path, ": zstd failed on brick level ", L, " channel ", stored[c].name, " (",
+                      bx, ",", by, ",", bz, "): ", ZSTD_getErrorName(n)));
+    }
+    if (n < brick_bytes) {
+      stored_bytes = scratch.out.data();
+      stored_size = n;
+      en.codec = std::uint8_t(Codec::kZstd);
+    }
+  }
+  r.payload.assign(stored_bytes, stored_size);
+  en.stored_size = stored_size;
+  en.checksum = xxh64(stored_bytes, stored_size);
+}
+
+// Narrows a uint16 label slice to uint8 (the stored type), refusing IDs above 255; `what`,
+// `slice` and `channel` name the slice in the error. Checked first: `dst` is untouched on error.
+void narrow_labels(const std::uint16_t* src, std::size_t plane, std::int64_t nx, std::uint8_t* dst,
+                   const std::string& what, std::int64_t slice, const std::string& channel) {
+  std::uint16_t any_high = 0;
+  for (std::size_t i = 0; i < plane; ++i)
+    any_high |= std::uint16_t(src[i] & 0xFF00u);
+  if (any_high) {
+    for (std::size_t i = 0; i < plane; ++i) {
+      if (src[i] > 255) {
+        throw InputError(cat(what, ": slice ", slice, ", channel \"", channel, "\", voxel (",
+                             i % std::size_t(nx), ", ", i / std::size_t(nx), "): label ID ", src[i],
+                             " does not fit the stored type uint8"));
+      }
+    }
+  }
+  for (std::size_t i = 0; i < plane; ++i)
+    dst[i] = std::uint8_t(src[i]);
+}
+
 }  // namespace
+
+std::vector<ChannelSpec> stored_channels_for(const WriterOptions& options) {
+  std::uint32_t max_id = 0;
+  for (const auto& l : options.label_table)
+    max_id = std::max(max_id, l.id);
+  std::vector<ChannelSpec> stored;
+  for (const auto& c : options.channels) {
+    ChannelSpec s = c;
+    if (is_label_type(c.type) && !options.label_table.empty()) {
+      s.type = max_id <= 255 ? ChannelType::kUint8 : ChannelType::kUint16;
+    }
+    stored.push_back(s);
+  }
+  return stored;
+}
+
+std::int64_t level0_slab_count(const WriterOptions& options) {
+  return ceil_div(options.dims[2], options.brick_edge);
+}
+
+std::vector<EncodedBrick> encode_level0_slab(const WriterOptions& options, std::int64_t bz,
+                                             const std::vector<const void*>& channel_slabs) {
+  validate(options);
+  const std::vector<ChannelSpec> stored = stored_channels_for(options);
+  const std::int64_t e = options.brick_edge;
+  if (bz < 0 || bz >= level0_slab_count(options)) {
+    throw std::invalid_argument(
+        cat("encode_level0_slab: slab ", bz, " is outside [0, ", level0_slab_count(options), ")"));
+  }
+  if (channel_slabs.size() != stored.size()) {
+    throw std::invalid_argument(cat("encode_level0_slab: got ", channel_slabs.size(),
+                                    " channel pointers, expected ", stored.size()));
+  }
+  const int nzv = int(std::min(e, options.dims[2] - bz * e));
+  const std::int64_t dx = options.dims[0], dy = options.dims[1];
+  const std::size_t plane = std::size_t(dx) * std::size_t(dy);
+  std::vector<std::vector<std::uint8_t>> slabs(stored.size());
+  for (std::size_t c = 0; c < stored.size(); ++c) {
+    if (!channel_slabs[c]) {
+      throw std::invalid_argument(
+          cat("encode_level0_slab: null pointer for channel \"", stored[c].name, "\""));
+    }
+    const std::size_t bytes = channel_type_bytes(stored[c].type);
+    slabs[c].resize(plane * std::size_t(nzv) * bytes);
+    if (stored[c].type == ChannelType::kUint8) {  // labels arrive as uint16 (append_slice)
+      const auto* src = static_cast<const std::uint16_t*>(channel_slabs[c]);
+      for (int z = 0; z < nzv; ++z)
+        narrow_labels(src + std::size_t(z) * plane, plane, dx,
+                      slabs[c].data() + std::size_t(z) * plane, "encode_level0_slab", bz * e + z,
+                      stored[c].name);
+    } else {
+      std::memcpy(slabs[c].data(), channel_slabs[c], slabs[c].size());
+    }
+  }
+  const std::int64_t gx = ceil_div(dx, e), gy = ceil_div(dy, e);
+  const std::int64_t items = gx * gy * std::int64_t(stored.size());
+  std::vector<BrickResult> results(static_cast<std::size_t>(items));
+  const BrickSource source{0, bz, nzv, gx, gy, dx, dy};
+  const int threads = int(std::min<std::int64_t>(resolve_threads(options.threads), items));
+  parallel_for(threads, threads, [&](std::int64_t t) {
+    WorkerScratch scratch;
+    for (std::int64_t i = t; i < items; i += threads)
+      encode_brick(options, stored, "encode_level0_slab", source, slabs, i, scratch,
+                   results[std::size_t(i)]);
+  });
+  std::vector<EncodedBrick> out(static_cast<std::size_t>(items));
+  for (std::size_t i = 0; i < out.size(); ++i) {
+    const IndexEntry& en = results[i].entry;
+    EncodedBrick& b = out[i];
+    b.codec = Codec(en.codec);
+    std::memcpy(b.min.data(), en.min, 8);
+    std::memcpy(b.max.data(), en.max, 8);
+    b.checksum = en.checksum;
+    if (results[i].payload.size)
+      b.payload.assign(results[i].payload.data.get(),
+                       results[i].payload.data.get() + results[i].payload.size);
+    b.labels = std::move(results[i].labels);
+  }
+  return out;
+}
+
+void decode_encoded_brick(const EncodedBrick& brick, ChannelType stored, int brick_edge,
+                          std::uint8_t* out, const std::string& what) {
+  const std::size_t bytes = channel_type_bytes(stored);
+  const std::size_t n =
+      std::size_t(brick_edge) * std::size_t(brick_edge) * std::size_t(brick_edge) * bytes;
+  switch (brick.codec) {
+    case Codec::kUniform:
+      for (std::size_t i = 0; i < n; i += bytes)
+        std::memcpy(out + i, brick.min.data(), bytes);
+      return;
+    case Codec::kRaw:
+    case Codec::kZstd:
+      break;
+    default:
+      throw FormatError(cat(what, ": unknown codec ", int(brick.codec)));
+  }
+  if (xxh64(brick.payload.data(), brick.payload.size()) != brick.checksum)
+    throw FormatError(cat(what, ": payload checksum mismatch"));
+  if (brick.codec == Codec::kRaw) {
+    if (brick.payload.size() != n)
+      throw FormatError(
+          cat(what, ": raw payload of ", brick.payload.size(), " bytes, expected ", n));
+    std::memcpy(out, brick.payload.data(), n);
+    return;
+  }
+  std::size_t r = ZSTD_decompress(out, n, brick.payload.data(), brick.payload.size());
+  if (ZSTD_isError(r))
+    throw FormatError(cat(what, ": zstd payload does not decode: ", ZSTD_getErrorName(r)));
+  if (r != n) throw FormatError(cat(what, ": zstd payload decodes to ", r, " bytes, expected ", n));
+}
 
 int Writer::level_count_for(const std::array<std::int64_t, 3>& dims, int brick_edge) {
   return format::level_count_for(dims, brick_edge);
@@ -254,6 +473,8 @@ struct Writer::Impl {
   std::vector<IndexEntry> entries;
   std::vector<std::vector<std::uint32_t>> entry_labels;
   std::vector<bool> filled;
+  // Level-0 slabs encoded elsewhere (provide_level0_slab), by bz, until their slab is flushed.
+  std::map<std::int64_t, std::vector<EncodedBrick>> provided;
   std::vector<std::uint8_t> zeros = std::vector<std::uint8_t>(kPayloadAlignment, 0);
   std::uint64_t pos = 0;
   std::int64_t slices = 0;
@@ -273,16 +494,7 @@ struct Writer::Impl {
 
   Impl(std::string p, WriterOptions o) : path(std::move(p)), opt(std::move(o)), file(path) {
     threads = resolve_threads(opt.threads);
-    std::uint32_t max_id = 0;
-    for (const auto& l : opt.label_table)
-      max_id = std::max(max_id, l.id);
-    for (const auto& c : opt.channels) {
-      ChannelSpec s = c;
-      if (is_label_type(c.type) && !opt.label_table.empty()) {
-        s.type = max_id <= 255 ? ChannelType::kUint8 : ChannelType::kUint16;
-      }
-      stored.push_back(s);
-    }
+    stored = stored_channels_for(opt);
     const int e = opt.brick_edge;
     auto g = make_geometry(opt.dims, opt.spacing_mm, opt.origin_mm, e, int(stored.size()),
                            ReaderLimits{}.max_index_entries);
@@ -369,77 +581,9 @@ struct Writer::Impl {
   }
 
   void make_brick(Batch& b, std::int64_t i, WorkerScratch& scratch) {
-    const int L = b.level;
-    const Level& lv = levels[L];
-    const std::int64_t per_channel = lv.grid[0] * lv.grid[1];
-    const int c = int(i / per_channel);
-    const std::int64_t bx = (i % per_channel) % lv.grid[0], by = (i % per_channel) / lv.grid[0];
-    const std::int64_t bz = b.bz;
-    const int nzv = b.nzv;
-    BrickResult& r = b.results[std::size_t(i)];
-    const std::int64_t e = opt.brick_edge;
-    const ChannelType type = stored[c].type;
-    const std::size_t bytes = channel_type_bytes(type);
-    const std::int64_t dx = lv.dims[0], dy = lv.dims[1];
-    const std::int64_t x0 = bx * e, y0 = by * e;
-    const std::int64_t nxv = std::min(e, dx - x0), nyv = std::min(e, dy - y0);
-    const std::size_t row_bytes = std::size_t(e) * bytes;
-    const std::size_t plane_bytes = row_bytes * std::size_t(e);
-    const std::size_t brick_bytes = plane_bytes * std::size_t(e);
-    if (scratch.brick.size() < brick_bytes) scratch.brick.resize(brick_bytes);
-    std::uint8_t* buf = scratch.brick.data();
-    const std::uint8_t* slab = b.slab[c].data();
-    for (std::int64_t z = 0; z < e; ++z) {
-      std::uint8_t* plane = buf + std::size_t(z) * plane_bytes;
-      if (z >= nzv) {
-        std::memcpy(plane, buf + std::size_t(nzv - 1) * plane_bytes, plane_bytes);
-        continue;
-      }
-      for (std::int64_t y = 0; y < e; ++y) {
-        std::uint8_t* dst = plane + std::size_t(y) * row_bytes;
-        if (y >= nyv) {
-          std::memcpy(dst, plane + std::size_t(nyv - 1) * row_bytes, row_bytes);
-          continue;
-        }
-        const std::uint8_t* src = slab + ((std::size_t(z) * dy + (y0 + y)) * dx + x0) * bytes;
-        std::memcpy(dst, src, std::size_t(nxv) * bytes);
-        for (std::int64_t x = nxv; x < e; ++x) {
-          std::memcpy(dst + std::size_t(x) * bytes, src + std::size_t(nxv - 1) * bytes, bytes);
-        }
-      }
-    }
-    IndexEntry& en = r.entry;
-    en.bx = std::uint32_t(bx);
-    en.by = std::uint32_t(by);
-    en.bz = std::uint32_t(bz);
-    en.level = std::uint8_t(L);
-    en.channel = std::uint8_t(c);
-    brick_stats(type, buf, brick_bytes / bytes, en, r.labels, scratch);
-    if (std::memcmp(en.min, en.max, 8) == 0) {
-      en.codec = std::uint8_t(Codec::kUniform);
-      return;  // offset, size, checksum stay 0
-    }
-    en.codec = std::uint8_t(Codec::kRaw);
-    const std::uint8_t* stored_bytes = buf;
-    std::size_t stored_size = brick_bytes;
-    if (opt.compress) {
-      const std::size_t bound = ZSTD_compressBound(brick_bytes);
-      if (scratch.out.size() < bound) scratch.out.resize(bound);
-      std::size_t n = ZSTD_compressCCtx(scratch.cctx, scratch.out.data(), bound, buf, brick_bytes,
-                                        opt.zstd_level);
-      if (ZSTD_isError(n)) {
-        throw Error(cat(path, ": zstd failed on brick level ", L, " channel ", stored[c].name, " (",
-                        bx, ",", by, ",", bz, "): ", ZSTD_getErrorName(n)));
-      }
-      if (n < brick_bytes) {
-        stored_bytes = scratch.out.data();
-        stored_size = n;
-        en.codec = std::uint8_t(Codec::kZstd);
-      }
-    }
-    r.payload.assign(stored_bytes, stored_size);
-    en.stored_size = stored_size;
-    en.checksum = xxh64(stored_bytes, stored_size);
+    const Level& lv = levels[b.level];
+    BrickSource src{b.level, b.bz, b.nzv, lv.grid[0], lv.grid[1], lv.dims[0], lv.dims[1]};
+    encode_brick(opt, stored, path, src, b.slab, i, scratch, b.results[std::size_t(i)]);
   }
 
   // Writes the oldest in-flight batch once its bricks are done (rethrowing a worker's error),
@@ -505,6 +649,40 @@ struct Writer::Impl {
     b->nzv = nzv;
     b->items = lv.grid[0] * lv.grid[1] * std::int64_t(stored.size());
     b->results.resize(std::size_t(b->items));
+    auto given = L == 0 ? provided.find(bz) : provided.end();
+    if (given != provided.end()) {
+      // Encoded elsewhere (a shard of a sharded pack): stored as handed over, not re-encoded.
+      const std::int64_t per_channel = lv.grid[0] * lv.grid[1];
+      for (std::int64_t i = 0; i < b->items; ++i) {
+        EncodedBrick& eb = given->second[std::size_t(i)];
+        BrickResult& r = b->results[std::size_t(i)];
+        IndexEntry& en = r.entry;
+        en.bx = std::uint32_t((i % per_channel) % lv.grid[0]);
+        en.by = std::uint32_t((i % per_channel) / lv.grid[0]);
+        en.bz = std::uint32_t(bz);
+        en.level = 0;
+        en.channel = std::uint8_t(i / per_channel);
+        en.codec = std::uint8_t(eb.codec);
+        std::memcpy(en.min, eb.min.data(), 8);
+        std::memcpy(en.max, eb.max.data(), 8);
+        en.checksum = eb.checksum;
+        en.stored_size = eb.payload.size();
+        if (!eb.payload.empty()) r.payload.assign(eb.payload.data(), eb.payload.size());
+        r.labels = std::move(eb.labels);
+      }
+      provided.erase(given);
+      b->done = b->items;
+      b->slab = std::move(lv.slab);
+      if (lv.spare.empty()) {
+        for (const auto& s : b->slab)
+          lv.spare.emplace_back(s.size());
+      }
+      lv.slab = std::move(lv.spare);
+      lv.spare.clear();
+      std::lock_guard<std::mutex> lock(mutex);
+      in_flight.push_back(std::move(b));
+      return;
+    }
     b->slab = std::move(lv.slab);
     if (lv.spare.empty()) {
       for (const auto& s : b->slab)
@@ -669,28 +847,35 @@ void Writer::append_slice(const std::vector<const void*>& channel_slices) {
     if (is_label_type(m.stored[c].type) && m.stored[c].type == ChannelType::kUint8) {
       // Narrowed straight into the level-0 slab; checked first, so a bad slice leaves the
       // slab as it was.
-      const auto* src = static_cast<const std::uint16_t*>(channel_slices[c]);
-      std::uint16_t any_high = 0;
-      for (std::size_t i = 0; i < plane; ++i)
-        any_high |= std::uint16_t(src[i] & 0xFF00u);
-      if (any_high) {
-        for (std::size_t i = 0; i < plane; ++i) {
-          if (src[i] > 255) {
-            throw InputError(cat(m.path, ": slice ", m.slices, ", channel \"", m.stored[c].name,
-                                 "\", voxel (", i % std::size_t(m.opt.dims[0]), ", ",
-                                 i / std::size_t(m.opt.dims[0]), "): label ID ", src[i],
-                                 " does not fit the stored type uint8"));
-          }
-        }
-      }
       std::uint8_t* dst = m.level0_slot(c);
-      for (std::size_t i = 0; i < plane; ++i)
-        dst[i] = std::uint8_t(src[i]);
+      narrow_labels(static_cast<const std::uint16_t*>(channel_slices[c]), plane, m.opt.dims[0], dst,
+                    m.path, m.slices, m.stored[c].name);
       in[c] = dst;
     }
   }
   m.push(0, in);
   ++m.slices;
+}
+
+void Writer::provide_level0_slab(std::int64_t bz, std::vector<EncodedBrick> bricks) {
+  Impl& m = *impl_;
+  const std::int64_t e = m.opt.brick_edge;
+  if (bz < 0 || bz >= level0_slab_count(m.opt)) {
+    throw std::invalid_argument(cat(m.path, ": provide_level0_slab: slab ", bz, " is outside [0, ",
+                                    level0_slab_count(m.opt), ")"));
+  }
+  const std::int64_t last = std::min((bz + 1) * e, m.opt.dims[2]) - 1;
+  if (m.slices > last || m.provided.count(bz)) {
+    throw std::invalid_argument(
+        cat(m.path, ": provide_level0_slab: slab ", bz, " was already flushed or provided"));
+  }
+  const Impl::Level& lv = m.levels[0];
+  const std::int64_t items = lv.grid[0] * lv.grid[1] * std::int64_t(m.stored.size());
+  if (std::int64_t(bricks.size()) != items) {
+    throw std::invalid_argument(cat(m.path, ": provide_level0_slab: slab ", bz, " has ",
+                                    bricks.size(), " bricks, expected ", items));
+  }
+  m.provided.emplace(bz, std::move(bricks));
 }
 
 void Writer::finish() {

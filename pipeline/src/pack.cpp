@@ -1,6 +1,7 @@
 #include "vispack/pipeline/pack.h"
 
 #include <algorithm>
+#include <cstring>
 #include <filesystem>
 #include <map>
 #include <set>
@@ -10,6 +11,7 @@
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
 #include "vispack/common/hash.h"
+#include "vispack/common/parallel.h"
 #include "vispack/common/test_pause.h"
 #include "vispack/format/downsample.h"
 #include "vispack/format/writer.h"
@@ -77,32 +79,44 @@ std::string hash_of_file_or_empty(const std::string& path) {
   return hex64(xxh64_file(path));
 }
 
-}  // namespace
+// Everything a pack (whole, shard or merge) derives from the config and the work folder before
+// reading any slice: the writer options with the metadata, and the input fingerprint.
+struct PackPlan {
+  int n = 0;
+  int f = 1;
+  StackInputs inputs;  // the input slice lists and transforms.json (work_layout.h)
+  cv::Size full, out_size;
+  cv::Rect box;          // the part of the full-resolution output grid packed (pack.crop_margin_px)
+  bool cropped = false;  // box is smaller than the grid
+  json crop_meta;        // metadata "crop" (null without a crop)
+  bool has_ct = false, has_labels = false;
+  format::WriterOptions wo;
+  std::vector<PaletteEntry> palette;
+  std::vector<int> missing, black, duplicated;
+  std::string input;  // the whole pack's input fingerprint (a merge records the same)
+};
 
-StageResult run_pack_stage(const Config& config, const StageOptions& options) {
-  const StackInputs inputs = read_stack_inputs(config);
+PackPlan plan_pack(const Config& config, const StageOptions& options) {
+  PackPlan plan;
+  plan.inputs = read_stack_inputs(config);
+  const StackInputs& inputs = plan.inputs;
   const std::vector<SliceFile>& stack = inputs.rgb;
   const int n = int(stack.size());
-  require_whole_stack(options, n, "vispack-pack");
+  plan.n = n;
   const std::string tpath = transforms_path(config);
   const StackTransforms& transforms = inputs.transforms;
   const bool has_ct = config.ct.has_value(), has_labels = config.seg.has_value();
+  plan.has_ct = has_ct;
+  plan.has_labels = has_labels;
 
   // One unit of work: its input fingerprint covers every intermediate read.
   Fingerprint fp = intermediates_fingerprint(config, inputs);
   if (has_labels && !config.seg->palette.empty()) fp.file(config.seg->palette);
   fp.text(config.output);
-  StageOptions unit = options;
-  unit.slices.clear();
-  StageRun run(config, "pack", 1, unit, {"pack", "spacing_mm", "name", "rgb", "ct", "seg"});
-  run.remove_stale_temporaries_of(config.output);
-  const std::string input = fp.str();
-  if (run.up_to_date(0, input, {config.output})) {
-    run.skip(0);
-    return run.finish(config.output);
-  }
+  plan.input = fp.str();
 
   const int f = config.pack.downsample;
+  plan.f = f;
   const cv::Size full(transforms.width, transforms.height);
   // The part of the registered frame packed: all of it, or (pack.crop_margin_px) the union of
   // the body masks plus the margin, its corners moved out to multiples of f so that the cropped
@@ -124,10 +138,14 @@ StageResult run_pack_stage(const Config& config, const StageOptions& options) {
                  {"box_px", {box.x, box.y, box.width, box.height}},
                  {"uncropped_dims", {(full.width + f - 1) / f, (full.height + f - 1) / f, n}}};
   }
-  const bool cropped = box.size() != full;
   const cv::Size out_size((box.width + f - 1) / f, (box.height + f - 1) / f);
+  plan.full = full;
+  plan.box = box;
+  plan.cropped = box.size() != full;
+  plan.crop_meta = crop_meta;
+  plan.out_size = out_size;
 
-  format::WriterOptions wo;
+  format::WriterOptions& wo = plan.wo;
   wo.dims = {out_size.width, out_size.height, n};
   wo.spacing_mm = {config.spacing_mm[0] * f, config.spacing_mm[1] * f, config.spacing_mm[2]};
   // Voxel (0, 0) of a downsampled grid is centred on the middle of its f x f block; a crop moves
@@ -143,7 +161,7 @@ StageResult run_pack_stage(const Config& config, const StageOptions& options) {
   if (has_labels) wo.channels.push_back({"labels", format::ChannelType::kUint16});
 
   // Label table: the palette, or the IDs found in the labels stage report.
-  std::vector<PaletteEntry> palette;
+  std::vector<PaletteEntry>& palette = plan.palette;
   if (has_labels) {
     if (!config.seg->palette.empty()) {
       palette = read_palette(config.seg->palette);
@@ -161,7 +179,8 @@ StageResult run_pack_stage(const Config& config, const StageOptions& options) {
 
   // Metadata: slices, registration quality, provenance (content hashes only: reproducible).
   json slices_meta = json::object();
-  std::vector<int> numbers, missing, black, duplicated, jumps;
+  std::vector<int> numbers, jumps;
+  std::vector<int>&missing = plan.missing, &black = plan.black, &duplicated = plan.duplicated;
   double q_sum = 0, q_min = 1;
   for (int k = 0; k < n; ++k) {
     numbers.push_back(stack[k].number);
@@ -221,81 +240,442 @@ StageResult run_pack_stage(const Config& config, const StageOptions& options) {
                             : hash_of_file_or_empty(config.registration.overrides)},
           {"rgb_names_sizes", hex64(xxh64(names.data(), names.size()))}}}}}};
 
-  make_directories(fs::path(config.output).parent_path().string());
-  format::Writer writer(config.output, wo);
-  const std::size_t plane = std::size_t(out_size.width) * out_size.height;
-  std::vector<std::uint8_t> rgba(plane * 4);
-  std::vector<std::int16_t> ct(plane);
-  std::vector<std::uint16_t> labels(plane);
-  std::uint64_t bytes = 0;
-  std::set<std::uint16_t> ids_seen;
-  for (int k = 0; k < n; ++k) {
-    Intermediates in = read_intermediates(config, inputs, k);
-    bytes += in.bytes;
-    if (cropped) {
-      in.rgb = in.rgb(box);
-      in.mask = in.mask(box);
-      if (has_ct) in.ct = in.ct(box);
-      if (has_labels) in.labels = in.labels(box);
-    }
-    cv::Mat rgb = in.rgb, mask = in.mask;
-    if (f > 1) rgb = alpha_weighted_downsample(rgb, mask, out_size);
-    if (f > 1) cv::resize(mask, mask, out_size, 0, 0, cv::INTER_AREA);
-    for (int y = 0; y < out_size.height; ++y) {
-      const cv::Vec3b* r = rgb.ptr<cv::Vec3b>(y);
-      const std::uint8_t* m = mask.ptr<std::uint8_t>(y);
-      std::uint8_t* o = rgba.data() + std::size_t(y) * out_size.width * 4;
-      for (int x = 0; x < out_size.width; ++x) {
-        o[4 * x] = r[x][0];
-        o[4 * x + 1] = r[x][1];
-        o[4 * x + 2] = r[x][2];
-        o[4 * x + 3] = m[x];
-      }
-    }
-    std::vector<const void*> channels = {rgba.data()};
-    if (has_ct) {
-      cv::Mat hu;
-      in.ct.convertTo(hu, CV_32F, 1.0, -32768.0);
-      if (f > 1) cv::resize(hu, hu, out_size, 0, 0, cv::INTER_AREA);
-      for (int y = 0; y < out_size.height; ++y) {
-        const float* h = hu.ptr<float>(y);
-        for (int x = 0; x < out_size.width; ++x)
-          ct[std::size_t(y) * out_size.width + x] = cv::saturate_cast<std::int16_t>(h[x]);
-      }
-      channels.push_back(ct.data());
-    }
-    if (has_labels) {
-      cv::Mat l = in.labels;
-      if (f > 1) l = majority_downsample(l, f, out_size);
-      for (int y = 0; y < out_size.height; ++y) {
-        const std::uint16_t* row = l.ptr<std::uint16_t>(y);
-        std::copy(row, row + out_size.width, labels.data() + std::size_t(y) * out_size.width);
-        for (int x = 0; x < out_size.width; ++x)
-          if (row[x]) ids_seen.insert(row[x]);
-      }
-      channels.push_back(labels.data());
-    }
-    writer.append_slice(channels);
-    if (test_pause_enabled()) test_pause_point(cat("append:pack:", k));  // test_pause.h
-    run.add_bytes(0);
+  return plan;
+}
+
+// Per-channel buffers of `slices` slices in append_slice's convention (labels as uint16).
+struct SliceBuffers {
+  std::vector<std::uint8_t> rgba;
+  std::vector<std::int16_t> ct;
+  std::vector<std::uint16_t> labels;
+  SliceBuffers(const PackPlan& plan, int slices) {
+    const std::size_t plane = std::size_t(plan.out_size.width) * plan.out_size.height;
+    rgba.resize(plane * 4 * std::size_t(slices));
+    if (plan.has_ct) ct.resize(plane * std::size_t(slices));
+    if (plan.has_labels) labels.resize(plane * std::size_t(slices));
   }
-  writer.finish();
-  run.done(0, input, {config.output}, bytes);
+  // Channel pointers of slice `z` (0-based within the buffers), in channel order.
+  std::vector<const void*> slice(const PackPlan& plan, int z) const {
+    const std::size_t plane = std::size_t(plan.out_size.width) * plan.out_size.height;
+    std::vector<const void*> channels = {rgba.data() + plane * 4 * std::size_t(z)};
+    if (plan.has_ct) channels.push_back(ct.data() + plane * std::size_t(z));
+    if (plan.has_labels) channels.push_back(labels.data() + plane * std::size_t(z));
+    return channels;
+  }
+};
+
+// Reads stack slice k's intermediates into slice `z` of `out`, converted to the output grid;
+// adds the label IDs seen to `ids_seen`. Returns the decoded bytes read.
+std::uint64_t read_pack_slice(const Config& config, const PackPlan& plan, int k, SliceBuffers& out,
+                              int z, std::set<std::uint16_t>& ids_seen) {
+  const int f = plan.f;
+  const cv::Size out_size = plan.out_size;
+  const std::size_t plane = std::size_t(out_size.width) * out_size.height;
+  Intermediates in = read_intermediates(config, plan.inputs, k);
+  if (plan.cropped) {
+    in.rgb = in.rgb(plan.box);
+    in.mask = in.mask(plan.box);
+    if (plan.has_ct) in.ct = in.ct(plan.box);
+    if (plan.has_labels) in.labels = in.labels(plan.box);
+  }
+  cv::Mat rgb = in.rgb, mask = in.mask;
+  if (f > 1) rgb = alpha_weighted_downsample(rgb, mask, out_size);
+  if (f > 1) cv::resize(mask, mask, out_size, 0, 0, cv::INTER_AREA);
+  std::uint8_t* rgba = out.rgba.data() + plane * 4 * std::size_t(z);
+  for (int y = 0; y < out_size.height; ++y) {
+    const cv::Vec3b* r = rgb.ptr<cv::Vec3b>(y);
+    const std::uint8_t* m = mask.ptr<std::uint8_t>(y);
+    std::uint8_t* o = rgba + std::size_t(y) * out_size.width * 4;
+    for (int x = 0; x < out_size.width; ++x) {
+      o[4 * x] = r[x][0];
+      o[4 * x + 1] = r[x][1];
+      o[4 * x + 2] = r[x][2];
+      o[4 * x + 3] = m[x];
+    }
+  }
+  if (plan.has_ct) {
+    std::int16_t* ct = out.ct.data() + plane * std::size_t(z);
+    cv::Mat hu;
+    in.ct.convertTo(hu, CV_32F, 1.0, -32768.0);
+    if (f > 1) cv::resize(hu, hu, out_size, 0, 0, cv::INTER_AREA);
+    for (int y = 0; y < out_size.height; ++y) {
+      const float* h = hu.ptr<float>(y);
+      for (int x = 0; x < out_size.width; ++x)
+        ct[std::size_t(y) * out_size.width + x] = cv::saturate_cast<std::int16_t>(h[x]);
+    }
+  }
+  if (plan.has_labels) {
+    std::uint16_t* labels = out.labels.data() + plane * std::size_t(z);
+    cv::Mat l = in.labels;
+    if (f > 1) l = majority_downsample(l, f, out_size);
+    for (int y = 0; y < out_size.height; ++y) {
+      const std::uint16_t* row = l.ptr<std::uint16_t>(y);
+      std::copy(row, row + out_size.width, labels + std::size_t(y) * out_size.width);
+      for (int x = 0; x < out_size.width; ++x)
+        if (row[x]) ids_seen.insert(row[x]);
+    }
+  }
+  return in.bytes;
+}
+
+// The report and quality fields every pack that wrote config.output shares.
+void report_pack(StageRun& run, const Config& config, const PackPlan& plan,
+                 const std::set<std::uint16_t>& ids_seen, std::uint64_t bytes) {
   std::vector<std::uint16_t> unknown;
   std::set<std::uint16_t> table;
-  for (const auto& e : palette)
+  for (const auto& e : plan.palette)
     table.insert(e.id);
   for (auto id : ids_seen)
     if (!table.count(id)) unknown.push_back(id);
   run.set_report("output", config.output);
-  run.set_report("dims", {out_size.width, out_size.height, n});
-  run.set_report("crop", crop_meta);
+  run.set_report("dims", {plan.out_size.width, plan.out_size.height, plan.n});
+  run.set_report("crop", plan.crop_meta);
   run.set_report("output_bytes", std::uint64_t(fs::file_size(config.output)));
   run.set_report("input_bytes", bytes);
   run.set_quality("label_ids_not_in_table", unknown);
-  run.set_quality("black_slices", black);
-  run.set_quality("duplicated_slices", duplicated);
-  run.set_quality("missing_numbers", missing.size());
+  run.set_quality("black_slices", plan.black);
+  run.set_quality("duplicated_slices", plan.duplicated);
+  run.set_quality("missing_numbers", plan.missing.size());
+}
+
+const std::vector<std::string> kPackSections = {"pack", "spacing_mm", "name", "rgb", "ct", "seg"};
+
+// ---- Sharded pack: slab files (format/SPEC.md "Partial slab files") ----
+
+constexpr char kSlabMagic[8] = {'\x89', 'V', 'P', 'S', '\r', '\n', '\x1a', '\n'};
+constexpr std::size_t kSlabRecordSize = 48;
+
+// The stack slices [first, last) of level-0 slab bz.
+std::pair<int, int> slab_slices(const PackPlan& plan, std::int64_t bz) {
+  const int e = plan.wo.brick_edge;
+  return {int(bz) * e, std::min(plan.n, int(bz + 1) * e)};
+}
+
+// What a slab is made from: its slices' intermediates, the palette (it decides the stored label
+// type) and the geometry. A merge refuses a slab file whose recorded fingerprint differs.
+std::string slab_input(const Config& config, const PackPlan& plan, std::int64_t bz) {
+  Fingerprint fp;
+  auto [first, last] = slab_slices(plan, bz);
+  // Colour and CT are rebuilt from the inputs with transforms.json (work_layout.h).
+  fp.file(transforms_path(config));
+  for (int k = first; k < last; ++k) {
+    fp.file(plan.inputs.rgb[std::size_t(k)].path).file(mask_path(config, k));
+    if (config.ct) {
+      const int ct_k = k + config.ct->slice_offset;
+      fp.text(ct_k >= 0 && ct_k < int(plan.inputs.ct.size())
+                  ? hex64(xxh64_file(plan.inputs.ct[std::size_t(ct_k)].path))
+                  : std::string("no CT slice"));
+    }
+    if (config.seg) fp.file(labels_path(config, k));
+  }
+  if (plan.has_labels && !config.seg->palette.empty()) fp.file(config.seg->palette);
+  fp.text(cat(plan.out_size.width, "x", plan.out_size.height, "x", plan.n, " box ", plan.box.x, ",",
+              plan.box.y, ",", plan.box.width, ",", plan.box.height, " keep ",
+              config.pack.keep_colour_outside_body, config.pack.keep_ct_outside_body));
+  return fp.str();
+}
+
+std::string slab_header_json(const PackPlan& plan, const std::vector<format::ChannelSpec>& stored,
+                             std::int64_t bz, std::size_t bricks, const std::string& input) {
+  json channels = json::array();
+  for (const auto& c : stored)
+    channels.push_back({{"name", c.name}, {"type", format::channel_type_name(c.type)}});
+  auto [first, last] = slab_slices(plan, bz);
+  json h = {{"format", "vispack-slab"},
+            {"version", 1},
+            {"bz", bz},
+            {"slices", {first, last}},
+            {"dims", plan.wo.dims},
+            {"brick_edge", plan.wo.brick_edge},
+            {"zstd_level", plan.wo.zstd_level},
+            {"compress", plan.wo.compress},
+            {"channels", channels},
+            {"bricks", bricks},
+            {"input", input}};
+  return h.dump();
+}
+
+template <class T>
+void put(std::string& out, T value) {
+  out.append(reinterpret_cast<const char*>(&value), sizeof value);
+}
+
+void write_slab_file(const std::string& path, const std::string& header,
+                     const std::vector<format::EncodedBrick>& bricks) {
+  std::string out(kSlabMagic, 8);
+  put(out, std::uint32_t(header.size()));
+  out += header;
+  for (const auto& b : bricks) {
+    put(out, std::uint8_t(b.codec));
+    out.append(7, '\0');
+    out.append(reinterpret_cast<const char*>(b.min.data()), 8);
+    out.append(reinterpret_cast<const char*>(b.max.data()), 8);
+    put(out, b.checksum);
+    put(out, std::uint64_t(b.payload.size()));
+    put(out, std::uint32_t(b.labels.size()));
+    put(out, std::uint32_t(0));
+    out.append(reinterpret_cast<const char*>(b.labels.data()), b.labels.size() * 4);
+    out.append(reinterpret_cast<const char*>(b.payload.data()), b.payload.size());
+  }
+  put(out, xxh64(out.data(), out.size()));
+  write_file_atomic(path, out);
+}
+
+// Reads and checks a slab file against what the merge expects (`header` = the JSON it would
+// write, input fingerprint aside). Throws FormatError / InputError naming the file.
+std::vector<format::EncodedBrick> read_slab_file(const std::string& path,
+                                                 const std::string& expected_header,
+                                                 const std::string& expected_input,
+                                                 std::pair<int, int> slices) {
+  const std::string data = read_file(path);
+  auto bad = [&](const std::string& what) { return FormatError(cat(path, ": ", what)); };
+  if (data.size() < 8 + 4 + 8 || std::memcmp(data.data(), kSlabMagic, 8) != 0)
+    throw bad("not a vispack slab file (bad magic or truncated)");
+  std::uint64_t sum = 0;
+  std::memcpy(&sum, data.data() + data.size() - 8, 8);
+  if (xxh64(data.data(), data.size() - 8) != sum)
+    throw bad("checksum mismatch (corrupt or truncated)");
+  std::size_t pos = 8;
+  const std::size_t end = data.size() - 8;
+  auto take = [&](void* dst, std::size_t n) {
+    if (n > end - pos) throw bad("truncated");
+    std::memcpy(dst, data.data() + pos, n);
+    pos += n;
+  };
+  std::uint32_t header_size = 0;
+  take(&header_size, 4);
+  if (header_size > end - pos) throw bad("truncated header");
+  json header = json::parse(data.substr(pos, header_size), nullptr, false);
+  pos += header_size;
+  if (!header.is_object() || !header.contains("input")) throw bad("bad header");
+  const std::string input = header["input"].is_string() ? header["input"].get<std::string>() : "";
+  json expected = json::parse(expected_header);
+  header["input"] = expected["input"];
+  if (header != expected) {
+    throw InputError(cat(path,
+                         ": written with other pack options or another stack shape; rerun "
+                         "vispack-pack --slices ",
+                         slices.first, ":", slices.second));
+  }
+  if (input != expected_input) {
+    throw InputError(cat(path, ": out of date: slices ", slices.first, ":", slices.second,
+                         " changed since it was written; rerun vispack-pack --slices ",
+                         slices.first, ":", slices.second));
+  }
+  const std::size_t count = expected["bricks"].get<std::size_t>();
+  std::vector<format::EncodedBrick> bricks(count);
+  for (auto& b : bricks) {
+    std::uint8_t rec[kSlabRecordSize];
+    take(rec, kSlabRecordSize);
+    if (rec[0] > 2) throw bad(cat("unknown codec ", int(rec[0])));
+    b.codec = format::Codec(rec[0]);
+    std::memcpy(b.min.data(), rec + 8, 8);
+    std::memcpy(b.max.data(), rec + 16, 8);
+    std::uint64_t size = 0;
+    std::uint32_t labels = 0;
+    std::memcpy(&b.checksum, rec + 24, 8);
+    std::memcpy(&size, rec + 32, 8);
+    std::memcpy(&labels, rec + 40, 4);
+    if (std::uint64_t(labels) * 4 > end - pos) throw bad("truncated label set");
+    b.labels.resize(labels);
+    take(b.labels.data(), std::size_t(labels) * 4);
+    if (size > end - pos) throw bad("truncated payload");
+    b.payload.assign(data.begin() + std::ptrdiff_t(pos), data.begin() + std::ptrdiff_t(pos + size));
+    pos += size;
+  }
+  if (pos != end) throw bad("trailing bytes after the last brick");
+  return bricks;
+}
+
+// The bricks of channel c in a slab's brick list (channel, then by, then bx).
+struct BrickSpan {
+  const format::EncodedBrick* first;
+  const format::EncodedBrick* last;
+  const format::EncodedBrick* begin() const { return first; }
+  const format::EncodedBrick* end() const { return last; }
+};
+BrickSpan bricks_of_channel(const std::vector<format::EncodedBrick>& bricks, std::size_t c,
+                            std::int64_t per_channel) {
+  const format::EncodedBrick* first = bricks.data() + c * std::size_t(per_channel);
+  return {first, first + per_channel};
+}
+
+std::string slab_path(const Config& config, std::int64_t bz) {
+  return slice_output_path(config, "pack-slabs", "slab", int(bz), "vpkslab");
+}
+
+StageResult run_pack_shard(const Config& config, const StageOptions& options, const PackPlan& plan,
+                           SliceRange range) {
+  const int e = plan.wo.brick_edge;
+  const auto slabs = format::level0_slab_count(plan.wo);
+  // The shard's slabs: those whose first slice lies in [A, B).
+  const int s0 = (range.first + e - 1) / e, s1 = (range.last + e - 1) / e;
+  if (s0 == s1) {
+    StageResult none;
+    none.stage = "pack";
+    none.output = stage_dir(config, "pack-slabs");
+    return none;
+  }
+  StageOptions unit = options;
+  unit.slices = cat(s0, ":", s1);
+  StageRun run(config, "pack-slabs", int(slabs), unit, kPackSections);
+  const std::vector<format::ChannelSpec> stored = format::stored_channels_for(plan.wo);
+  std::set<std::uint16_t> ids_seen;
+  for (int bz = s0; bz < s1; ++bz) {
+    const std::string path = slab_path(config, bz);
+    const std::string input = slab_input(config, plan, bz);
+    if (run.up_to_date(bz, input, {path})) {
+      run.skip(bz);
+      continue;
+    }
+    auto [first, last] = slab_slices(plan, bz);
+    SliceBuffers buffers(plan, last - first);
+    std::uint64_t bytes = 0;
+    for (int k = first; k < last; ++k)
+      bytes += read_pack_slice(config, plan, k, buffers, k - first, ids_seen);
+    auto bricks = format::encode_level0_slab(plan.wo, bz, buffers.slice(plan, 0));
+    write_slab_file(path, slab_header_json(plan, stored, bz, bricks.size(), input), bricks);
+    if (test_pause_enabled()) test_pause_point(cat("slab:pack:", bz));  // test_pause.h
+    run.done(bz, input, {path}, bytes);
+  }
+  run.set_report("slabs", {s0, s1});
+  run.set_report("slices", {range.first, range.last});
+  return run.finish(run.dir());
+}
+
+StageResult run_pack_whole(const Config& config, const StageOptions& options,
+                           const PackPlan& plan) {
+  StageOptions unit = options;
+  unit.slices.clear();
+  StageRun run(config, "pack", 1, unit, kPackSections);
+  run.remove_stale_temporaries_of(config.output);
+  if (run.up_to_date(0, plan.input, {config.output})) {
+    run.skip(0);
+    return run.finish(config.output);
+  }
+  make_directories(fs::path(config.output).parent_path().string());
+  format::Writer writer(config.output, plan.wo);
+  SliceBuffers buffers(plan, 1);
+  std::uint64_t bytes = 0;
+  std::set<std::uint16_t> ids_seen;
+  for (int k = 0; k < plan.n; ++k) {
+    bytes += read_pack_slice(config, plan, k, buffers, 0, ids_seen);
+    writer.append_slice(buffers.slice(plan, 0));
+    if (test_pause_enabled()) test_pause_point(cat("append:pack:", k));  // test_pause.h
+    run.add_bytes(0);
+  }
+  writer.finish();
+  run.done(0, plan.input, {config.output}, bytes);
+  report_pack(run, config, plan, ids_seen, bytes);
+  return run.finish(config.output);
+}
+
+}  // namespace
+
+StageResult run_pack_stage(const Config& config, const StageOptions& options) {
+  PackPlan plan = plan_pack(config, options);
+  if (!options.slices.empty()) {
+    SliceRange range = parse_slice_range(options.slices, plan.n);
+    if (range.first != 0 || range.last != plan.n)
+      return run_pack_shard(config, options, plan, range);
+  }
+  return run_pack_whole(config, options, plan);
+}
+
+StageResult run_pack_merge(const Config& config, const StageOptions& options) {
+  if (!options.slices.empty())
+    throw UsageError("--merge builds the whole file from every shard; it takes no --slices");
+  PackPlan plan = plan_pack(config, options);
+  StageOptions unit = options;
+  StageRun run(config, "pack", 1, unit, kPackSections);
+  run.remove_stale_temporaries_of(config.output);
+  if (run.up_to_date(0, plan.input, {config.output})) {
+    run.skip(0);
+    return run.finish(config.output);
+  }
+  const auto slabs = format::level0_slab_count(plan.wo);
+  // Every slab file must be there before anything is written.
+  for (std::int64_t bz = 0; bz < slabs; ++bz) {
+    const std::string path = slab_path(config, bz);
+    if (!fs::exists(path)) {
+      auto [first, last] = slab_slices(plan, bz);
+      throw InputError(cat(path, ": missing: the pack shard holding slices ", first, ":", last,
+                           " has not run (vispack-pack --slices ", first, ":", last, ")"));
+    }
+  }
+  make_directories(fs::path(config.output).parent_path().string());
+  format::Writer writer(config.output, plan.wo);
+  const std::vector<format::ChannelSpec> stored = writer.stored_channels();
+  const std::int64_t e = plan.wo.brick_edge;
+  const std::int64_t nx = plan.out_size.width, ny = plan.out_size.height;
+  const std::size_t plane = std::size_t(nx) * std::size_t(ny);
+  const std::int64_t gx = (nx + e - 1) / e, gy = (ny + e - 1) / e;
+  std::set<std::uint16_t> ids_seen;
+  std::uint64_t bytes = 0;
+  const int threads = resolve_threads(plan.wo.threads);
+  SliceBuffers buffers(plan, int(std::min<std::int64_t>(e, plan.n)));
+  for (std::int64_t bz = 0; bz < slabs; ++bz) {
+    const std::string path = slab_path(config, bz);
+    const auto slices = slab_slices(plan, bz);
+    const std::string input = slab_input(config, plan, bz);
+    std::vector<format::EncodedBrick> bricks = read_slab_file(
+        path, slab_header_json(plan, stored, bz, std::size_t(gx * gy) * stored.size(), input),
+        input, slices);
+    bytes += fs::file_size(path);
+    const int nzv = slices.second - slices.first;
+    // Level 0 of the slab back from its bricks (lossless), in append_slice's convention.
+    // (One buffer for every slab, allocated once: the last slab may use fewer slices.)
+    for (std::size_t c = 0; c < stored.size(); ++c) {
+      const std::size_t vb = format::channel_type_bytes(stored[c].type);
+      const bool widen = stored[c].type == format::ChannelType::kUint8;  // labels as uint16
+      const std::size_t ob = widen ? 2 : vb;
+      std::uint8_t* dst = c == 0 ? buffers.rgba.data()
+                                 : reinterpret_cast<std::uint8_t*>(
+                                       plan.has_ct && c == 1 ? static_cast<void*>(buffers.ct.data())
+                                                             : buffers.labels.data());
+      for (const auto& b : bricks_of_channel(bricks, c, gx * gy))
+        for (std::uint32_t id : b.labels)
+          if (id) ids_seen.insert(std::uint16_t(id));
+      // Bricks decode in parallel (each fills its own part of the slices); a worker per thread
+      // with its own brick buffer.
+      const std::int64_t count = gx * gy;
+      const int workers = int(std::min<std::int64_t>(threads, count));
+      parallel_for(workers, workers, [&](std::int64_t w) {
+        std::vector<std::uint8_t> brick(std::size_t(e * e * e) * vb);
+        for (std::int64_t i = w; i < count; i += workers) {
+          const std::int64_t bx = i % gx, by = i / gx;
+          const auto& b = bricks[std::size_t(std::int64_t(c) * count + i)];
+          format::decode_encoded_brick(
+              b, stored[c].type, int(e), brick.data(),
+              cat(path, ": brick (", bx, ",", by, ") of channel ", stored[c].name));
+          const std::int64_t nxv = std::min(e, nx - bx * e), nyv = std::min(e, ny - by * e);
+          for (int z = 0; z < nzv; ++z)
+            for (std::int64_t y = 0; y < nyv; ++y) {
+              const std::uint8_t* src = brick.data() + std::size_t((z * e + y) * e) * vb;
+              std::uint8_t* out =
+                  dst + (std::size_t(z) * plane + std::size_t(by * e + y) * std::size_t(nx) +
+                         std::size_t(bx * e)) *
+                            ob;
+              if (widen) {
+                auto* o16 = reinterpret_cast<std::uint16_t*>(out);
+                for (std::int64_t x = 0; x < nxv; ++x)
+                  o16[x] = src[x];
+              } else {
+                std::memcpy(out, src, std::size_t(nxv) * vb);
+              }
+            }
+        }
+      });
+    }
+    writer.provide_level0_slab(bz, std::move(bricks));
+    for (int z = 0; z < nzv; ++z)
+      writer.append_slice(buffers.slice(plan, z));
+    run.add_bytes(0);
+  }
+  writer.finish();
+  run.done(0, plan.input, {config.output}, bytes);
+  report_pack(run, config, plan, ids_seen, bytes);
+  run.set_report("merged_slabs", slabs);
   return run.finish(config.output);
 }
 

@@ -4,11 +4,12 @@
 #include "vispack/common/cli.h"
 #include "vispack/common/error.h"
 #include "vispack/pipeline/run.h"
+#include "vispack/pipeline/work_layout.h"
 
 int main(int argc, char** argv) {
   using namespace vispack;
   return run_main("vispack-run", argc, argv, [](Args& args) {
-    args.describe("CONFIG [--from STAGE] [--to STAGE] [--force] [--quiet] [--threads N]",
+    args.describe("CONFIG [--from STAGE] [--to STAGE] [--force] [--quiet] [--threads N] [--plan]",
                   "Runs register -> mask -> labels -> pack -> vdb on the config's slice folders "
                   "(labels only with a seg section, vdb only when enabled), skipping slices and "
                   "stages whose outputs are up to date with their inputs and config, and prints "
@@ -19,6 +20,9 @@ int main(int argc, char** argv) {
     options.force = args.flag("--force", "recompute every stage in range");
     options.quiet = args.flag("--quiet", "no progress output");
     auto threads = args.option_int("--threads", "N", "worker threads (default: all cores)");
+    const bool plan = args.flag("--plan",
+                                "print \"slices N\" and \"stages ...\" (the stages the config "
+                                "enables) and exit: for schedulers (scripts/vispack-slurm)");
     std::string config_path = args.positional("CONFIG", "pipeline config (JSON)");
     args.done();
     if (threads) {
@@ -26,6 +30,16 @@ int main(int argc, char** argv) {
       options.threads = int(*threads);
     }
     pipeline::Config config = pipeline::load_config(config_path);
+    if (plan) {
+      std::cout << "slices " << pipeline::stack_slices(config).size() << "\nstages";
+      for (const auto& name : pipeline::pipeline_stage_names()) {
+        if (name == "labels" && !config.seg) continue;
+        if (name == "vdb" && (!config.vdb.enabled || config.vdb_output.empty())) continue;
+        std::cout << " " << name;
+      }
+      std::cout << "\n";
+      return 0;
+    }
     for (const auto& r : pipeline::run_pipeline(config, options)) {
       std::cout << r.stage << ": " << (r.processed ? "ran" : "up to date") << " (" << r.processed
                 << " computed, " << r.skipped << " up to date, " << r.seconds << " s) -> "

@@ -188,10 +188,12 @@ TEST(Pack, MetadataDefectsAndReproducibility) {
   EXPECT_EQ(not_in_block, 0u);
   EXPECT_GT(majorities, n2 / 2);
 
+  // A shard and a merge at once are refused (usage, exit 2); sharding itself is
+  // test_pack_shards.cpp.
   std::string out;
-  EXPECT_EQ(
-      test::run_command(
-          test::bin("vispack-pack") + " --config " + dir / "config.json" + " --slices 0:5", &out),
-      2)
+  EXPECT_EQ(test::run_command(test::bin("vispack-pack") + " --config " + dir / "config.json" +
+                                  " --slices 0:5 --merge",
+                              &out),
+            2)
       << out;
 }

@@ -54,6 +54,40 @@ struct WriterOptions {
   nlohmann::json extra_metadata = nlohmann::json::object();
 };
 
+// One level-0 brick encoded exactly as the Writer stores it (SPEC.md "Codecs"): what a shard of a
+// sharded pack hands to the merge (encode_level0_slab, Writer::provide_level0_slab).
+struct EncodedBrick {
+  Codec codec = Codec::kUniform;
+  std::array<std::uint8_t, 8> min{};  // the index entry's min / max bytes (SPEC.md "Brick index")
+  std::array<std::uint8_t, 8> max{};
+  std::uint64_t checksum = 0;         // xxh64(payload); 0 for a uniform brick
+  std::vector<std::uint8_t> payload;  // stored bytes; empty for a uniform brick
+  std::vector<std::uint32_t> labels;  // label channels: the brick's ID set, ascending; else empty
+};
+
+// The stored channel list `options` give (label channels narrowed as the Writer narrows them).
+std::vector<ChannelSpec> stored_channels_for(const WriterOptions& options);
+
+// Number of level-0 slabs (brick rows along z): ceil(dims[2] / brick_edge).
+std::int64_t level0_slab_count(const WriterOptions& options);
+
+// Encodes the level-0 bricks of slab `bz` (slices [bz * E, min((bz + 1) * E, dims[2]))) as a
+// Writer with the same options stores them: byte-identical payloads, min, max, checksums and
+// label sets, whatever `options.threads`. `channel_slabs[c]` holds the slab's slices of channel c
+// one after the other, in append_slice's convention (labels as uint16). Returns the bricks in
+// index order within the slab: channel, then by, then bx (bx fastest).
+// Throws std::invalid_argument (bad options, bz out of range, wrong pointer count), InputError
+// (a label ID does not fit the stored type).
+std::vector<EncodedBrick> encode_level0_slab(const WriterOptions& options, std::int64_t bz,
+                                             const std::vector<const void*>& channel_slabs);
+
+// Decodes `brick` into brick_edge^3 voxels of `stored` type at `out` (brick_edge^3 *
+// channel_type_bytes(stored) bytes): the merge of a sharded pack rebuilds level 0 from it to
+// compute the coarser levels. Throws FormatError naming `what` when the payload does not match
+// its checksum or does not decode to exactly that size.
+void decode_encoded_brick(const EncodedBrick& brick, ChannelType stored, int brick_edge,
+                          std::uint8_t* out, const std::string& what);
+
 class Writer {
  public:
   // Validates the options (std::invalid_argument naming the bad field) and creates the
@@ -72,6 +106,14 @@ class Writer {
   // Throws std::invalid_argument (wrong pointer count, null pointer, more than dims[2] slices),
   // InputError (a label ID does not fit the stored type; names slice and voxel), IoError.
   void append_slice(const std::vector<const void*>& channel_slices);
+
+  // Hands over the already encoded level-0 bricks of slab `bz` (encode_level0_slab, possibly
+  // run by another process): the Writer stores them as they are instead of encoding that slab.
+  // Call it before the slab's last slice is appended; the slab's slices must still be appended
+  // (the coarser levels are computed from them), and must be the slices the bricks were encoded
+  // from, or the file is inconsistent. Throws std::invalid_argument (bz out of range, slab
+  // already flushed or provided, wrong brick count).
+  void provide_level0_slab(std::int64_t bz, std::vector<EncodedBrick> bricks);
 
   // Slices appended so far.
   std::int64_t slices_written() const;

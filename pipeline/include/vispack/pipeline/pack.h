@@ -24,8 +24,18 @@
 // quality (from transforms.json), provenance (vispack version, config hash, input hashes: xxHash64
 // of transforms.json, palette, id map and of the input slices' names and sizes). No timestamps:
 // the same inputs and config give a byte-identical file.
-// Sharding: not supported (the file is one stream); `--slices` with a partial range is a
-// UsageError. A whole-stack pack is fast (the bricks are compressed in parallel).
+// Sharding (format/SPEC.md "Partial slab files"): a shard `--slices A:B` (a partial range)
+// encodes the level-0 slabs (brick rows of brick_edge slices along z) whose FIRST slice lies in
+// [A, B), so any partition of the stack into ranges partitions the slabs (a range holding no slab
+// start does nothing). Each slab becomes <work>/pack-slabs/slab_NNNN.vpkslab (NNNN = bz), written
+// atomically, recorded in the pack-slabs manifest (resume keeps finished slabs; --force redoes
+// them). run_pack_merge then writes config.output from every slab file: level-0 payloads are
+// copied as they are (never recompressed), decoded only to compute the coarser levels, and the
+// file is byte-identical to a whole-stack pack of the same intermediates (the one brick encoder
+// and the same slab order: format/writer.h). A merge refuses a missing slab file, one written with
+// other options, and one whose slices changed since (InputError naming the file and the --slices
+// shard to rerun). The merge records the whole pack's input fingerprint, so a later whole pack
+// (or vispack-run) finds the output up to date.
 // Up to date: pack is one unit whose input fingerprint covers every intermediate it reads and
 // the "pack", "spacing_mm", "name" config sections; the output file's identity is recorded.
 #pragma once
@@ -35,8 +45,14 @@
 
 namespace vispack::pipeline {
 
-// Writes config.output. Throws InputError (a missing or wrong-sized intermediate, naming it),
-// IoError, UsageError (a shard range).
+// Writes config.output (whole stack) or the shard's slab files (options.slices a partial range).
+// Throws InputError (a missing or wrong-sized intermediate, naming it), IoError, UsageError (a bad
+// range).
 StageResult run_pack_stage(const Config& config, const StageOptions& options);
+
+// vispack-pack --merge: writes config.output from <work>/pack-slabs/ (see "Sharding" above).
+// Throws UsageError (options.slices set), InputError (a slab file missing, foreign or out of
+// date, naming it and the shard to rerun), FormatError (a corrupt slab file), IoError.
+StageResult run_pack_merge(const Config& config, const StageOptions& options);
 
 }  // namespace vispack::pipeline

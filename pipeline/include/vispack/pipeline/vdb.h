@@ -11,7 +11,12 @@
 // carries metadata "vispack_version" and "units" ("HU", "id", "rgb01").
 // The file is written with io::File's default compression (Blosc when OpenVDB has it, else zip)
 // to a temporary name and renamed: config.vdb_output appears complete or not at all.
-// Not sharded (`--slices` with a partial range is a UsageError). Needs vdb.enabled.
+// Not sharded (`--slices` with a partial range is a UsageError), on purpose: one .vdb file holds
+// whole grids that openvdb::io::File::write takes from memory, so per-shard grids would have to
+// be merged in one process anyway (a re-read of every shard's grids), and per-shard .vdb files
+// would change what the export is (one file per volume). On a cluster it is one job after the
+// pack merge (scripts/vispack-slurm, workflow/Snakefile), in parallel with nothing else; its cost
+// is in docs/BENCHMARKS.md. Needs vdb.enabled.
 #pragma once
 
 #include "vispack/pipeline/config.h"

@@ -1,0 +1,98 @@
+#!/usr/bin/env bash
+# Measures the cluster path (docs/BENCHMARKS.md "Cluster"), as root, on a one-node SLURM
+# (tests/cluster/one_node_slurm.sh) on this machine:
+#   1. per-job overhead: a chain of 8 single jobs running `true` (sbatch --dependency=afterok),
+#      and the same 8 as Snakemake --slurm rules;
+#   2. the vhp phantom (2048x1216, SLICES slices) through scripts/vispack-slurm with 1 and 2
+#      workers (--shards 1 / 2, one CPU per array task), against vispack-run --threads 1;
+#   3. the merge against a whole pack on the medium phantom (512x384x160, brick_edge 32: 5 slabs):
+#      vispack-pack (whole) vs vispack-pack --slices per slab + vispack-pack --merge, one thread.
+# Usage: tests/cluster/cluster_bench.sh BIN_DIR [SLICES]   (default 16 slices; prints results)
+set -euo pipefail
+root=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
+bin=$(cd "${1:?usage: cluster_bench.sh BIN_DIR [SLICES]}" && pwd)
+slices=${2:-16}
+[[ $(id -u) -eq 0 ]] || { echo "cluster_bench: needs root (it starts SLURM daemons)"; exit 77; }
+tmp=$(mktemp -d "${TMPDIR:-/tmp}/vispack-cluster-bench-XXXXXX")
+# shellcheck source=one_node_slurm.sh
+source "$root/tests/cluster/one_node_slurm.sh"
+trap 'stop_one_node_slurm; rm -rf "$tmp"' EXIT
+now() { date +%s.%N; }
+elapsed() { awk -v a="$1" -v b="$(now)" 'BEGIN { printf "%.2f", b - a }'; }
+seconds_of() { sed -n 's/.*"seconds": *\([0-9.e+-]*\).*/\1/p' "$1" | head -n1; }
+
+echo "machine: $(nproc) cores, $(awk '/MemTotal/ { printf "%.1f GiB", $2 / 1048576 }' /proc/meminfo), load average at start: $(cut -d' ' -f1-3 /proc/loadavg)"
+echo "commit: $(git -C "$root" rev-parse --short HEAD)$(git -C "$root" diff --quiet HEAD -- . 2>/dev/null || echo ' (dirty tree)')"
+start_one_node_slurm "$tmp/cluster"
+
+# 1. Per-job overhead.
+printf '#!/bin/bash\ntrue\n' >"$tmp/empty.sh"
+t=$(now) previous=""
+for i in $(seq 8); do
+  args=(--parsable --kill-on-invalid-dep=yes -o /dev/null)
+  [[ -n $previous ]] && args+=("--dependency=afterok:$previous")
+  ((i == 8)) && args+=(--wait)
+  previous=$(sbatch "${args[@]}" "$tmp/empty.sh")
+done
+chain=$(elapsed "$t")
+echo "overhead: 8 chained empty sbatch jobs: $chain s, $(awk -v c="$chain" 'BEGIN { printf "%.2f", c / 8 }') s per job"
+mkdir -p "$tmp/snake"
+{
+  echo 'rule all:'
+  echo '    input: "s8"'
+  for i in $(seq 8); do
+    echo "rule s$i:"
+    ((i > 1)) && echo "    input: \"s$((i - 1))\""
+    echo "    output: touch(\"s$i\")"
+    echo '    shell: "true"'
+  done
+} >"$tmp/snake/Snakefile"
+t=$(now)
+(cd "$tmp/snake" && snakemake --quiet --slurm --jobs 1 --max-status-checks-per-second 1 \
+   --default-resources slurm_partition=vispack runtime=10 mem_mb=100 >"$tmp/snake.out" 2>&1) ||
+  { tail -n 30 "$tmp/snake.out"; echo "snakemake --slurm failed"; exit 1; }
+snake=$(elapsed "$t")
+echo "overhead: 8 chained empty Snakemake --slurm rules: $snake s, $(awk -v c="$snake" 'BEGIN { printf "%.2f", c / 8 }') s per job"
+
+# 2. 1 and 2 workers on the vhp phantom.
+"$bin/vispack-phantom" --out "$tmp/vhp" --preset vhp --slices "$slices" --seed 1 --quiet >/dev/null
+for copy in local w1 w2; do cp -a "$tmp/vhp" "$tmp/$copy"; done
+t=$(now)
+"$bin/vispack-run" "$tmp/local/config.json" --quiet --threads 1 >/dev/null
+local_s=$(elapsed "$t")
+echo "vhp-$slices: vispack-run --threads 1: $local_s s"
+for w in 1 2; do
+  t=$(now)
+  "$root/scripts/vispack-slurm" "$tmp/w$w/config.json" --shards "$w" --bin "$bin" \
+    --jobs-dir "$tmp/w$w/jobs" --wait >"$tmp/w$w.out" 2>&1 || { cat "$tmp/w$w.out"; exit 1; }
+  eval "wall_$w=$(elapsed "$t")"
+  cmp -s "$tmp/local/out/volume.vpk" "$tmp/w$w/out/volume.vpk" || { echo "w$w: packed file differs"; exit 1; }
+  echo "vhp-$slices: vispack-slurm --shards $w (8 jobs): $(eval echo "\$wall_$w") s (byte-identical)"
+done
+echo "vhp-$slices: speed-up 1 -> 2 workers: $(awk -v a="$wall_1" -v b="$wall_2" 'BEGIN { printf "%.2f", a / b }')x (whole chain, overhead included)"
+stop_one_node_slurm
+
+# 3. Merge against a whole pack (no SLURM needed).
+"$bin/vispack-phantom" --out "$tmp/med" --preset medium --seed 1 --quiet >/dev/null
+sed -i 's/"brick_edge": *[0-9]*/"brick_edge": 32/' "$tmp/med/config.json"
+"$bin/vispack-run" "$tmp/med/config.json" --to labels --quiet >/dev/null
+n=$("$bin/vispack-run" "$tmp/med/config.json" --plan | sed -n 's/^slices //p')
+work=$(sed -n 's/.*"work_dir": *"\([^"]*\)".*/\1/p' "$tmp/med/config.json")
+for rep in 1 2 3; do
+  rm -rf "$tmp/med/$work/pack" "$tmp/med/$work/pack-slabs" "$tmp/med/out"
+  t=$(now)
+  "$bin/vispack-pack" --config "$tmp/med/config.json" --threads 1 --quiet
+  whole=$(elapsed "$t")
+  cp "$tmp/med/out/volume.vpk" "$tmp/whole.vpk"
+  rm -rf "$tmp/med/$work/pack" "$tmp/med/out"
+  t=$(now)
+  for ((a = 0; a < n; a += 32)); do
+    "$bin/vispack-pack" --config "$tmp/med/config.json" --slices "$a:$((a + 32))" --threads 1 --quiet
+  done
+  shards=$(elapsed "$t")
+  t=$(now)
+  "$bin/vispack-pack" --config "$tmp/med/config.json" --merge --threads 1 --quiet
+  merge=$(elapsed "$t")
+  cmp -s "$tmp/whole.vpk" "$tmp/med/out/volume.vpk" || { echo "merge differs"; exit 1; }
+  echo "medium (512x384x$n, brick 32): whole pack $whole s; $(((n + 31) / 32)) slab shards $shards s; merge $merge s = $(awk -v m="$merge" -v w="$whole" 'BEGIN { printf "%.0f", 100 * m / w }') % of the whole pack (byte-identical)"
+done

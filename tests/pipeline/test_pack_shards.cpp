@@ -1,0 +1,230 @@
+// Sharded vispack-pack (--slices shards writing slab files, then --merge): the merged file is
+// byte-identical to a whole-stack pack, whatever the split; resume keeps finished slabs; a
+// missing, out-of-date or corrupt slab file stops the merge with an error naming it.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <memory>
+
+#include <nlohmann/json.hpp>
+
+#include "test_support.h"
+#include "vispack/common/atomic_file.h"
+#include "vispack/common/error.h"
+#include "vispack/phantom/phantom.h"
+#include "vispack/pipeline/pack.h"
+#include "vispack/pipeline/run.h"
+
+using namespace vispack;
+using namespace vispack::pipeline;
+namespace fs = std::filesystem;
+
+namespace {
+
+// One tiny phantom (96x64x24) run to the labels stage, with brick_edge 8 (3 level-0 slabs, 4
+// levels), and the whole-stack pack of it: shared by every test (each works on its own copy of
+// the work folder's pack outputs).
+class PackShards : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    dir_ = std::make_unique<test::TempDir>("vispack-pack-shards");
+    phantom::PhantomOptions po;
+    po.preset = "tiny";
+    po.seed = 11;
+    po.quiet = true;
+    phantom::make_phantom(dir_->path(), po);
+    const std::string path = *dir_ / "config.json";
+    nlohmann::json raw = nlohmann::json::parse(read_file(path));
+    raw["pack"]["brick_edge"] = 8;
+    raw["vdb"]["enabled"] = false;
+    write_file_atomic(path, raw.dump(2));
+    Config config = load_config(path);
+    RunOptions options;
+    options.quiet = true;
+    options.to = "pack";
+    run_pipeline(config, options);
+    whole_ = new std::string(read_file(config.output));
+  }
+  static void TearDownTestSuite() {
+    delete whole_;
+    whole_ = nullptr;
+    dir_.reset();
+  }
+
+  void SetUp() override {
+    config_ = load_config(*dir_ / "config.json");
+    // Each test starts with no output and no slab files (and no pack records).
+    fs::remove(config_.output);
+    fs::remove_all(config_.work_dir + "/pack-slabs");
+    fs::remove_all(config_.work_dir + "/pack");
+  }
+
+  StageOptions shard(const std::string& slices) const {
+    StageOptions o;
+    o.slices = slices;
+    o.quiet = true;
+    return o;
+  }
+  StageOptions quiet() const { return shard(""); }
+  std::string slab(int bz) const {
+    char name[32];
+    std::snprintf(name, sizeof name, "slab_%04d.vpkslab", bz);
+    return config_.work_dir + "/pack-slabs/" + name;
+  }
+  // Runs the shards, then the merge; returns the merged file's bytes.
+  std::string shards_then_merge(const std::vector<std::string>& shards) {
+    for (const auto& s : shards)
+      run_pack_stage(config_, shard(s));
+    run_pack_merge(config_, quiet());
+    return read_file(config_.output);
+  }
+
+  static std::unique_ptr<test::TempDir> dir_;
+  static std::string* whole_;
+  Config config_;
+};
+std::unique_ptr<test::TempDir> PackShards::dir_;
+std::string* PackShards::whole_ = nullptr;
+
+// The message of the error `fn` throws, or "" (and a test failure) if it throws none.
+template <class E, class F>
+std::string error_of(F fn) {
+  try {
+    fn();
+  } catch (const E& e) {
+    return e.what();
+  }
+  ADD_FAILURE() << "no error thrown";
+  return "";
+}
+
+}  // namespace
+
+TEST_F(PackShards, OneShardHoldingEverySlab) {
+  // 0:23 is a partial range (a shard) whose slab starts 0, 8, 16 all lie inside it.
+  std::string merged = shards_then_merge({"0:23"});
+  for (int bz = 0; bz < 3; ++bz)
+    EXPECT_TRUE(fs::exists(slab(bz))) << slab(bz);
+  ASSERT_EQ(merged.size(), whole_->size());
+  EXPECT_TRUE(merged == *whole_) << "merged file differs from the whole-stack pack";
+}
+
+TEST_F(PackShards, TwoShardsByteIdentical) {
+  std::string merged = shards_then_merge({"12:24", "0:12"});  // any order
+  ASSERT_EQ(merged.size(), whole_->size());
+  EXPECT_TRUE(merged == *whole_) << "merged file differs from the whole-stack pack";
+}
+
+TEST_F(PackShards, ThreeUnevenShardsByteIdentical) {
+  // Slab starts: 0 in [0, 5), 8 in [5, 13), 16 in [13, 24).
+  std::string merged = shards_then_merge({"0:5", "5:13", "13:24"});
+  ASSERT_EQ(merged.size(), whole_->size());
+  EXPECT_TRUE(merged == *whole_) << "merged file differs from the whole-stack pack";
+  // A vispack-run after the merge finds pack up to date (same input fingerprint).
+  StageResult again = run_pack_stage(config_, quiet());
+  EXPECT_EQ(again.processed, 0);
+}
+
+TEST_F(PackShards, ShardWithoutSlabStartDoesNothing) {
+  StageResult r = run_pack_stage(config_, shard("1:8"));  // no slab starts in [1, 8)
+  EXPECT_EQ(r.processed, 0);
+  EXPECT_FALSE(fs::exists(slab(0)));
+  EXPECT_FALSE(fs::exists(slab(1)));
+}
+
+TEST_F(PackShards, MissingShardNamed) {
+  run_pack_stage(config_, shard("0:12"));
+  std::string message = error_of<InputError>([&] { run_pack_merge(config_, quiet()); });
+  EXPECT_NE(message.find("slab_0002.vpkslab"), std::string::npos) << message;
+  EXPECT_NE(message.find("--slices 16:24"), std::string::npos) << message;
+  EXPECT_FALSE(fs::exists(config_.output));
+
+  // The executable: one line, exit code 6 (InputError), naming the slab file.
+  test::CommandResult r = test::run_command_split(test::bin("vispack-pack") + " --config " +
+                                                  *dir_ / "config.json" + " --merge --quiet");
+  EXPECT_EQ(r.code, 6) << r.err;
+  EXPECT_EQ(r.err.rfind("vispack-pack: error: ", 0), 0u) << r.err;
+  EXPECT_NE(r.err.find("slab_0002.vpkslab: missing"), std::string::npos) << r.err;
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+}
+
+TEST_F(PackShards, ResumeKeepsFinishedSlabs) {
+  StageResult first = run_pack_stage(config_, shard("0:12"));
+  EXPECT_EQ(first.processed, 2);
+  const auto t0 = fs::last_write_time(slab(0)), t1 = fs::last_write_time(slab(1));
+  // The failed (here: never run) shard is resubmitted alone; the finished one is not redone.
+  StageResult again = run_pack_stage(config_, shard("0:12"));
+  EXPECT_EQ(again.processed, 0);
+  EXPECT_EQ(again.skipped, 2);
+  EXPECT_EQ(fs::last_write_time(slab(0)), t0);
+  EXPECT_EQ(fs::last_write_time(slab(1)), t1);
+  StageResult rest = run_pack_stage(config_, shard("12:24"));
+  EXPECT_EQ(rest.processed, 1);
+  run_pack_merge(config_, quiet());
+  EXPECT_TRUE(read_file(config_.output) == *whole_);
+  // --force redoes a shard's slabs.
+  StageOptions force = shard("0:12");
+  force.force = true;
+  EXPECT_EQ(run_pack_stage(config_, force).processed, 2);
+}
+
+TEST_F(PackShards, CorruptSlabRefused) {
+  shards_then_merge({"0:12", "12:24"});
+  fs::remove(config_.output);
+  fs::remove_all(config_.work_dir + "/pack");
+  // Flip one byte in the middle of slab 1 (a payload or record): the slab's checksum catches it.
+  std::string bytes = read_file(slab(1));
+  bytes[bytes.size() / 2] = char(bytes[bytes.size() / 2] ^ 0x5A);
+  {
+    std::ofstream out(slab(1), std::ios::binary | std::ios::trunc);
+    out.write(bytes.data(), std::streamsize(bytes.size()));
+  }
+  std::string message = error_of<FormatError>([&] { run_pack_merge(config_, quiet()); });
+  EXPECT_NE(message.find("slab_0001.vpkslab"), std::string::npos) << message;
+  EXPECT_FALSE(fs::exists(config_.output));
+}
+
+TEST_F(PackShards, OutOfDateSlabRefused) {
+  run_pack_stage(config_, shard("0:12"));
+  run_pack_stage(config_, shard("12:24"));
+  // An intermediate of slice 9 (slab 1) is rewritten after its slab was encoded.
+  const std::string mask = config_.work_dir + "/mask/mask_0009.png";
+  std::string png = read_file(mask);
+  fs::remove(mask);
+  write_file_atomic(mask, png);
+  std::string message = error_of<InputError>([&] { run_pack_merge(config_, quiet()); });
+  EXPECT_NE(message.find("slab_0001.vpkslab: out of date"), std::string::npos) << message;
+  EXPECT_NE(message.find("--slices 8:16"), std::string::npos) << message;
+  // Rerunning the shard redoes that slab only; the merge then matches again.
+  EXPECT_EQ(run_pack_stage(config_, shard("0:12")).processed, 1);
+  run_pack_merge(config_, quiet());
+  EXPECT_TRUE(read_file(config_.output) == *whole_);
+}
+
+// With the volume cropped to the bodies (pack.crop_margin_px, issue #12) and the colour outside
+// the body kept: the shards pack the same box and the merge equals the whole-stack pack of it;
+// a slab written before the crop changed is refused as out of date, not merged.
+TEST_F(PackShards, CroppedAndKeptByteIdentical) {
+  const std::string path = *dir_ / "config.json";
+  const std::string original = read_file(path);
+  nlohmann::json raw = nlohmann::json::parse(original);
+  raw["pack"]["crop_margin_px"] = 3;
+  raw["pack"]["keep_outside_body"] = "colour";
+  write_file_atomic(path, raw.dump(2));
+  config_ = load_config(path);
+  run_pack_stage(config_, quiet());
+  const std::string whole = read_file(config_.output);
+  EXPECT_NE(whole, *whole_) << "the crop changed nothing";
+  fs::remove(config_.output);
+  fs::remove_all(config_.work_dir + "/pack");
+  const std::string merged = shards_then_merge({"0:9", "9:24"});
+  EXPECT_TRUE(merged == whole) << "merged file differs from the whole-stack pack of the crop";
+  // Back to the uncropped config: the cropped slabs are out of date for the merge.
+  write_file_atomic(path, original);
+  config_ = load_config(path);
+  fs::remove(config_.output);
+  fs::remove_all(config_.work_dir + "/pack");
+  const std::string message = error_of<InputError>([&] { run_pack_merge(config_, quiet()); });
+  EXPECT_NE(message.find("slab_0000.vpkslab"), std::string::npos) << message;
+}
