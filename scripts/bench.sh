@@ -89,13 +89,13 @@ phantom() {  # phantom NAME PRESET [SLICES [EXTRA FLAGS...]]
 
 if [[ $quick == 1 ]]; then
   reg_phantom=$(phantom tiny tiny); vol_phantom=$reg_phantom
-  reg_pairs=2 reps=1 mask_slices=2 view_size=64 view_spv=1
+  reg_pairs=2 reps=1 mask_slices=2 view_size=64 view_spv=1 view_reps=1 view_frames=1
 else
   stamp "Generating phantoms (cached in $work/data)"
   # Registration pairs from a full-size stack without the black/duplicate slices, so every
   # consecutive pair is a usable drift measurement (the jump is still in it).
   reg_phantom=$(phantom vhp-reg vhp 6 --no-defects); vol_phantom=$(phantom small small)
-  reg_pairs=5 reps=3 mask_slices=8 view_size=128 view_spv=0.5,1,2
+  reg_pairs=5 reps=3 mask_slices=8 view_size=128 view_spv=0.5,1,2,4 view_reps=3 view_frames=3
 fi
 
 stamp "Registration: vispack methods and elastix on the same pairs, interleaved round by round"
@@ -124,17 +124,14 @@ if [[ $quick == 0 ]]; then
     { cat "$res/store_size.log"; fail "stored-size benchmark failed"; }
 fi
 
-stamp "Viewer: slice renderer, then VTK's GPU ray caster on the same volume and view"
+stamp "Viewer: slice renderer and VTK's GPU ray caster on the same volume and view, interleaved"
 if [[ -x $bin/viewer_bench ]]; then
-  "$bin/viewer_bench" --file "$vol_phantom/out/volume.vpk" --size $view_size --spv $view_spv \
-    --json "$res/viewer.json" --ref-png "$res/viewer_ref.png" >"$res/viewer.log" 2>&1 ||
-    { cat "$res/viewer.log"; fail "viewer_bench failed"; }
-  "$bin/vispack-extract" "$vol_phantom/out/volume.vpk" --channel rgba -o "$work/viewer_rgba.nrrd" >/dev/null ||
-    fail "vispack-extract failed"
-  vtk_cmd=("$py" "$root/scripts/bench/vtk_peer.py" "$res/viewer.json" "$work/viewer_rgba.nrrd" "$res/viewer_vtk.json")
-  # VTK's offscreen window still needs an X display here (Mesa through GLX): use Xvfb without one.
-  if [[ -z ${DISPLAY:-} ]] && command -v xvfb-run >/dev/null; then vtk_cmd=(xvfb-run -a "${vtk_cmd[@]}"); fi
-  "${vtk_cmd[@]}" >"$res/vtk.log" 2>&1 || { cat "$res/vtk.log"; fail "VTK peer failed"; }
+  # Round by round, one viewer_bench process then one VTK process (A B A B ...), view_reps
+  # rounds of view_frames timed frames each; quality = foreground PSNR against each one's fine
+  # reference (scripts/bench/viewer_peers.py).
+  "$py" "$root/scripts/bench/viewer_peers.py" "$bin" "$vol_phantom/out/volume.vpk" $view_size $view_spv \
+    $view_reps $view_frames "$res" "$work" 2>"$res/viewer-driver.log" ||
+    { tail -40 "$res/viewer.log"; cat "$res/viewer-driver.log"; fail "viewer benchmark (viewer_bench, VTK peer) failed"; }
 else
   echo "bench.sh: viewer_bench not built (no viewer); skipping the viewer benchmark" | tee "$res/viewer.skipped"
 fi

@@ -1,7 +1,8 @@
 // viewer_bench [--file X.vpk] [--size N] [--dims X,Y,Z]: speed against error of the slice
 // renderer, time to first frame and upload throughput, on whatever GL the headless context
 // gets (llvmpipe here). Without --file it writes a medium-sized synthetic volume (the size of
-// the `medium` phantom, 512x384x160, bricks of 64) to a temporary file first.
+// the `medium` phantom, 512x384x160, bricks of 64) to a temporary file first (--keep OUT: to OUT,
+// kept, so that later runs can read it with --file).
 // Prints a Markdown table for docs/BENCHMARKS.md.
 // --json OUT also writes every row plus the camera (world mm) and the level-0 box, so that a peer
 // renderer (scripts/bench/vtk_peer.py) can render the same view; --spv LIST sets the slices per
@@ -11,7 +12,12 @@
 // mode the bricks drawn (levels), skipped and culled, the bytes uploaded against the whole level,
 // the load time and the frame time at the level the screen footprint asks for; --psnr adds its
 // foreground PSNR against the CPU reference of the finest level it draws. --paged-only skips
-// the whole-level measurements (which upload level 0 whole).
+// the whole-level measurements (which upload level 0 whole), --no-paged the paged ones;
+// --modes LIST restricts the paged modes, --reps N sets the frames timed per row (median).
+// Quality is the foreground PSNR (render::diff_foreground: pixels where either image is not
+// black) against vispack's CPU reference ray caster at 8 steps per voxel of the same transfer
+// function; the whole-frame PSNR is kept beside it for the record. scripts/bench/viewer_peers.py
+// runs this and VTK's ray caster (scripts/bench/vtk_peer.py) alternately, process by process.
 #include <time.h>
 #include <unistd.h>
 
@@ -21,6 +27,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -52,28 +59,41 @@ double cpu_seconds() {
   return double(ts.tv_sec) + 1e-9 * double(ts.tv_nsec);
 }
 
-// Foreground PSNR (pixels where either image is not black) and max difference.
-std::pair<double, int> body_psnr(const Image8& a, const Image8& b) {
-  double se = 0;
-  std::int64_t n = 0;
-  int worst = 0;
-  for (std::size_t i = 0; i + 3 < a.rgba.size(); i += 4) {
-    bool lit = false;
-    for (int c = 0; c < 3; ++c)
-      lit = lit || a.rgba[i + c] || b.rgba[i + c];
-    if (!lit) continue;
-    ++n;
-    for (int c = 0; c < 3; ++c) {
-      int e = std::abs(int(a.rgba[i + c]) - int(b.rgba[i + c]));
-      se += double(e) * e;
-      worst = std::max(worst, e);
-    }
+// Median of the wall times of `reps` frames (render + read-back); `img` gets the last frame.
+template <class Frame>
+double median_ms(int reps, Frame&& frame) {
+  std::vector<double> ms;
+  for (int r = 0; r < reps; ++r) {
+    const double t0 = now();
+    frame();
+    ms.push_back((now() - t0) * 1e3);
   }
-  return {se == 0 ? 99.0 : 10 * std::log10(255.0 * 255.0 * 3.0 * double(n) / se), worst};
+  std::sort(ms.begin(), ms.end());
+  return ms.size() % 2 ? ms[ms.size() / 2] : 0.5 * (ms[ms.size() / 2 - 1] + ms[ms.size() / 2]);
 }
 
-void paged_bench(const std::string& path, int size, std::int64_t gpu_mb, bool psnr,
-                 nlohmann::json& out) {
+// One row of the whole-level table: printed, and returned for the JSON. `psnr_db` is the
+// foreground PSNR (the quality measure), `psnr_whole_frame_db` the old whole-frame one.
+nlohmann::json quality_row(const char* mode, int level, double spv, std::int64_t slices, double ms,
+                           const Image8& img, const Image8& ref) {
+  const ForegroundDiff d = diff_foreground(img, ref);
+  const double whole = psnr_rgb(img, ref);
+  const std::string what = level ? std::string(mode) + ", level " + std::to_string(level) : mode;
+  std::printf("| %s | %.2g | %lld | %.1f | %.2f | %d | %.1f |\n", what.c_str(), spv,
+              (long long)slices, ms, d.psnr_db, d.max_diff, whole);
+  return {{"mode", mode},
+          {"level", level},
+          {"slices_per_voxel", spv},
+          {"slices", slices},
+          {"ms", ms},
+          {"psnr_db", d.psnr_db},
+          {"max_diff", d.max_diff},
+          {"foreground_pixels", d.pixels},
+          {"psnr_whole_frame_db", whole}};
+}
+
+void paged_bench(const std::string& path, int size, std::int64_t gpu_mb, bool psnr, int reps,
+                 const std::vector<Mode>& modes, nlohmann::json& out) {
   double t_open = now();
   std::shared_ptr<const VolumeSource> source = fill_lost_slices(open_packed(path));
   viewer::HeadlessContext context;
@@ -117,7 +137,7 @@ void paged_bench(const std::string& path, int size, std::int64_t gpu_mb, bool ps
       psnr ? " PSNR (dB) / max diff |" : "", psnr ? "---|" : "");
   nlohmann::json rows = nlohmann::json::array();
   for (double spv : {2.0, 1.0})
-    for (Mode m : {Mode::kColour, Mode::kCt, Mode::kIso, Mode::kLabels, Mode::kMip, Mode::kTf2d}) {
+    for (Mode m : modes) {
       RenderParams p = base;
       p.mode = m;
       p.slices_per_voxel = spv;
@@ -139,16 +159,13 @@ void paged_bench(const std::string& path, int size, std::int64_t gpu_mb, bool ps
       const std::int64_t uploaded = cache->stats().uploaded_bytes;
       renderer.render_bricks(*cache, tree, plan, cam, p);  // warm-up (shader compile)
       renderer.read_rgba8();
-      const int reps = 2;
-      t0 = now();
       const double cpu0 = cpu_seconds();
       Image8 img;
       viewer::FrameInfo info;
-      for (int r = 0; r < reps; ++r) {
+      const double ms = median_ms(reps, [&] {
         info = renderer.render_bricks(*cache, tree, plan, cam, p);
         img = renderer.read_rgba8();
-      }
-      const double ms = (now() - t0) / reps * 1e3;
+      });
       const double cpu = (cpu_seconds() - cpu0) / reps;
       int per_level[64] = {0}, finest = levels - 1;
       for (const BrickKey& k : plan.draw) {
@@ -180,7 +197,9 @@ void paged_bench(const std::string& path, int size, std::int64_t gpu_mb, bool ps
       if (psnr) {
         VolumeData level = load_level(*source, finest);
         Image8 ref = to_rgba8(render_reference(level, cam, p, {4}));
-        auto [db, worst] = body_psnr(img, ref);
+        const ForegroundDiff d = diff_foreground(img, ref);
+        const double db = d.psnr_db;
+        const int worst = d.max_diff;
         psnr_cell = " " + std::to_string(db).substr(0, 5) + " / " + std::to_string(worst) + " |";
         row["psnr_db"] = db;
         row["max_diff"] = worst;
@@ -211,15 +230,36 @@ int main(int argc, char** argv) {
     bool paged_only = args.flag("--paged-only", "skip the whole-level measurements");
     bool paged_psnr = args.flag("--psnr", "paged frames: PSNR against the reference");
     auto gpu_mb = args.option_int("--max-gpu-mb", "MB", "brick cache budget (default 2048)");
+    bool no_paged = args.flag("--no-paged", "skip the brick-paged measurements");
+    auto keep = args.option("--keep", "OUT.vpk", "write the synthetic volume there and keep it");
+    std::string modes_text = args.option("--modes", "LIST", "paged modes, comma separated",
+                                         "colour,ct,iso,labels,mip,tf2d");
+    const int reps =
+        int(args.option_int("--reps", "N", "frames timed per row (default 2)").value_or(2));
     args.done();
+    if (reps < 1) throw UsageError("--reps must be at least 1");
+    if (paged_only && no_paged) throw UsageError("--paged-only and --no-paged exclude each other");
+    auto split = [](const std::string& text) {
+      std::vector<std::string> items;
+      for (std::size_t pos = 0; pos <= text.size();) {
+        std::size_t end = text.find(',', pos);
+        if (end == std::string::npos) end = text.size();
+        items.push_back(text.substr(pos, end - pos));
+        pos = end + 1;
+      }
+      return items;
+    };
     std::vector<double> spv;
-    for (std::size_t pos = 0; pos < spv_text.size();) {
-      std::size_t end = spv_text.find(',', pos);
-      if (end == std::string::npos) end = spv_text.size();
-      const double v = std::atof(spv_text.substr(pos, end - pos).c_str());
+    for (const std::string& item : split(spv_text)) {
+      const double v = std::atof(item.c_str());
       if (!(v > 0)) throw UsageError("--spv must list positive numbers");
       spv.push_back(v);
-      pos = end + 1;
+    }
+    std::vector<Mode> modes;
+    for (const std::string& item : split(modes_text)) {
+      const std::optional<Mode> m = mode_from_name(item);
+      if (!m) throw UsageError("--modes: unknown mode '" + item + "'");
+      modes.push_back(*m);
     }
     nlohmann::json out;
     std::setvbuf(stdout, nullptr, _IOLBF, 0);  // lines appear as they are measured
@@ -232,9 +272,13 @@ int main(int argc, char** argv) {
       int d[3];
       if (std::sscanf(dims_text.c_str(), "%d,%d,%d", &d[0], &d[1], &d[2]) != 3)
         throw UsageError("--dims must be X,Y,Z");
-      tmp = std::filesystem::temp_directory_path() / ("viewer_bench_" + std::to_string(getpid()));
-      std::filesystem::create_directories(tmp);
-      path = (tmp / "medium.vpk").string();
+      if (keep) {
+        path = *keep;
+      } else {
+        tmp = std::filesystem::temp_directory_path() / ("viewer_bench_" + std::to_string(getpid()));
+        std::filesystem::create_directories(tmp);
+        path = (tmp / "medium.vpk").string();
+      }
       double t0 = now();
       auto v = synthetic::make_synthetic(d[0], d[1], d[2], {0.33, 0.33, 1.0});
       format::WriterOptions o;
@@ -250,7 +294,7 @@ int main(int argc, char** argv) {
       std::printf("synthetic %dx%dx%d written in %.1f s\n", d[0], d[1], d[2], now() - t0);
     }
 
-    paged_bench(path, size, gpu_mb.value_or(2048), paged_psnr, out);
+    if (!no_paged) paged_bench(path, size, gpu_mb.value_or(2048), paged_psnr, reps, modes, out);
     if (paged_only) {
       if (json_out) write_file_atomic(*json_out, out.dump(1));
       if (!tmp.empty()) std::filesystem::remove_all(tmp);
@@ -308,9 +352,12 @@ int main(int argc, char** argv) {
 
     VolumeData data = load_level(*source, 0);
     std::printf(
-        "\n| mode | slices/voxel | slices | frame time (ms, %dx%d) | PSNR vs reference (dB) |\n"
-        "|---|---|---|---|---|\n",
-        size, size);
+        "\n| mode | slices/voxel | slices | frame time (ms, %dx%d, median of %d) | foreground "
+        "PSNR vs reference (dB) | max diff | whole-frame PSNR (dB) "
+        "|\n|---|---|---|---|---|---|---|\n",
+        size, size, reps);
+    out["reps"] = reps;
+    out["reference"] = "CPU reference ray caster, 8 steps per voxel, level 0";
     for (Mode m : {Mode::kColour, Mode::kLabels}) {
       RenderParams p = params;
       p.mode = m;
@@ -323,23 +370,12 @@ int main(int argc, char** argv) {
         p.slices_per_voxel = s;
         viewer::FrameInfo info = renderer.render(fine, cam, p);  // warm-up
         renderer.read_rgba8();
-        const int reps = 2;
-        double t0 = now();
         Image8 img;
-        for (int r = 0; r < reps; ++r) {
+        const double ms = median_ms(reps, [&] {
           renderer.render(fine, cam, p);
           img = renderer.read_rgba8();
-        }
-        double ms = (now() - t0) / reps * 1e3;
-        const double psnr = psnr_rgb(img, ref);
-        std::printf("| %s | %.1f | %lld | %.0f | %.1f |\n", mode_name(m), s, (long long)info.slices,
-                    ms, psnr);
-        rows.push_back({{"mode", mode_name(m)},
-                        {"level", 0},
-                        {"slices_per_voxel", s},
-                        {"slices", info.slices},
-                        {"ms", ms},
-                        {"psnr_db", psnr}});
+        });
+        rows.push_back(quality_row(mode_name(m), 0, s, info.slices, ms, img, ref));
       }
       // Levels of detail: the coarser levels' textures, 1 slice per voxel of that level.
       for (int level = 1; json_out && m == Mode::kColour && level < source->level_count();
@@ -349,23 +385,12 @@ int main(int argc, char** argv) {
         p.slices_per_voxel = 1.0;
         viewer::FrameInfo info = renderer.render(lod, cam, p);  // warm-up
         renderer.read_rgba8();
-        const int reps = 2;
-        double t0 = now();
         Image8 img;
-        for (int r = 0; r < reps; ++r) {
+        const double ms = median_ms(reps, [&] {
           renderer.render(lod, cam, p);
           img = renderer.read_rgba8();
-        }
-        const double ms = (now() - t0) / reps * 1e3;
-        const double psnr = psnr_rgb(img, ref);
-        std::printf("| %s, level %d | 1.0 | %lld | %.0f | %.1f |\n", mode_name(m), level,
-                    (long long)info.slices, ms, psnr);
-        rows.push_back({{"mode", mode_name(m)},
-                        {"level", level},
-                        {"slices_per_voxel", 1.0},
-                        {"slices", info.slices},
-                        {"ms", ms},
-                        {"psnr_db", psnr}});
+        });
+        rows.push_back(quality_row(mode_name(m), level, 1.0, info.slices, ms, img, ref));
       }
       std::fprintf(stderr, "(reference %s: %.1f s)\n", mode_name(m), t_ref);
     }

@@ -2,6 +2,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <stdexcept>
 
 #include "synthetic_volume.h"
 #include "vispack/render/reference.h"
@@ -187,6 +188,30 @@ TEST(Reference, HalvingTheStepLeavesTheImageUnchanged) {
       EXPECT_LT(psnr_rgb(a, to_rgba8(render_reference(*v, cam, raw, {2}))), 35.0);
     }
   }
+}
+
+// The benchmark's quality measure (issue 14): the background shared by both images must not count.
+TEST(ForegroundDiff, LeavesTheSharedBackgroundOutAndCountsEitherImagesPixels) {
+  Image8 a(10, 10), b(10, 10);  // black: background everywhere
+  EXPECT_TRUE(std::isinf(diff_foreground(a, b).psnr_db));
+  EXPECT_EQ(diff_foreground(a, b).pixels, 0);
+  // 4 pixels lit in a only, 4 lit in both with an error of 10 in R.
+  for (int i = 0; i < 4; ++i) {
+    a.rgba[4 * i + 1] = 50;
+    a.rgba[4 * (50 + i)] = 110;
+    b.rgba[4 * (50 + i)] = 100;
+  }
+  const ForegroundDiff d = diff_foreground(a, b);
+  EXPECT_EQ(d.pixels, 8);
+  EXPECT_EQ(d.max_diff, 50);
+  const double mse = (4 * 50.0 * 50.0 + 4 * 10.0 * 10.0) / (8 * 3);
+  EXPECT_NEAR(d.psnr_db, 10 * std::log10(255.0 * 255.0 / mse), 1e-9);
+  // Over the whole frame the 92 identical background pixels raise the PSNR by 10 log10(100 / 8).
+  EXPECT_NEAR(psnr_rgb(a, b) - d.psnr_db, 10 * std::log10(100.0 / 8.0), 1e-9);
+  // Another background colour: black pixels are then foreground.
+  const std::uint8_t grey[3] = {7, 7, 7};
+  EXPECT_EQ(diff_foreground(a, b, grey).pixels, 100);
+  EXPECT_THROW(diff_foreground(a, Image8(5, 5)), std::invalid_argument);
 }
 
 TEST(Reference, IsoOnAUniformVolumeIsFinite) {

@@ -37,6 +37,33 @@ double psnr_rgb(const Image8& a, const Image8& b) {
   return 10.0 * std::log10(255.0 * 255.0 / mse);
 }
 
+ForegroundDiff diff_foreground(const Image8& a, const Image8& b, const std::uint8_t background[3]) {
+  if (a.width != b.width || a.height != b.height)
+    throw std::invalid_argument("diff_foreground: images differ in size");
+  static const std::uint8_t kBlack[3] = {0, 0, 0};
+  const std::uint8_t* bg = background ? background : kBlack;
+  ForegroundDiff d;
+  double se = 0;
+  const std::size_t n = std::size_t(a.width) * a.height;
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::uint8_t* p = &a.rgba[4 * i];
+    const std::uint8_t* q = &b.rgba[4 * i];
+    bool lit = false;
+    for (int c = 0; c < 3; ++c)
+      lit = lit || p[c] != bg[c] || q[c] != bg[c];
+    if (!lit) continue;
+    ++d.pixels;
+    for (int c = 0; c < 3; ++c) {
+      const int e = std::abs(int(p[c]) - int(q[c]));
+      se += double(e) * e;
+      d.max_diff = std::max(d.max_diff, e);
+    }
+  }
+  d.psnr_db = se == 0 ? std::numeric_limits<double>::infinity()
+                      : 10.0 * std::log10(255.0 * 255.0 * 3.0 * double(d.pixels) / se);
+  return d;
+}
+
 int max_abs_diff_rgb(const Image8& a, const Image8& b) {
   if (a.width != b.width || a.height != b.height)
     throw std::invalid_argument("max_abs_diff_rgb: images differ in size");
