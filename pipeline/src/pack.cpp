@@ -439,6 +439,7 @@ std::vector<format::EncodedBrick> read_slab_file(const std::string& path,
   const std::size_t end = data.size() - 8;
   auto take = [&](void* dst, std::size_t n) {
     if (n > end - pos) throw bad("truncated");
+    if (n == 0) return;  // an empty label set: no bytes, and its data() may be null (memcpy UB)
     std::memcpy(dst, data.data() + pos, n);
     pos += n;
   };
