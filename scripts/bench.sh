@@ -12,7 +12,9 @@
 # Environment: VISPACK_BENCH_VHP_SLICES (default "2 4 8"): slice counts of the vhp-size scaling
 # runs; VISPACK_BENCH_MEDIUM=0 skips the medium phantom in the scaling runs;
 # VISPACK_BENCH_MEM_SLICES (default "64 128 256"): slice counts of the per-stage memory runs;
-# VISPACK_BENCH_STORE_SLICES (default 8): slices of the vhp phantom of the stored-size run.
+# VISPACK_BENCH_STORE_SLICES (default 8): slices of the vhp phantom of the stored-size run;
+# VISPACK_BENCH_REAL_SLICES (default "128 256 512"): stack sizes of the real-size runs (2048x1216),
+# VISPACK_BENCH_REAL_REPS (default 2): their one/two-thread and pack/zstd rounds.
 # Results (JSON, logs) go to BUILD/bench/results; any failing benchmark makes the script exit 1.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
@@ -24,7 +26,7 @@ while [[ $# -gt 0 ]]; do
     --no-build) do_build=0 ;;
     --build) build=$(realpath -m "$2"); shift ;;
     --require-clean) require_clean=1 ;;
-    -h|--help) sed -n '2,16p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,18p' "$0"; exit 0 ;;
     *) echo "bench.sh: unknown option $1" >&2; exit 2 ;;
   esac
   shift
@@ -157,6 +159,17 @@ for item in $scale_list; do
   "$py" "$root/scripts/bench/scaling_row.py" "$name" "$dir" "$res/run-$name.log" >>"$res/scaling.tsv"
   stamp "  $name: $(tail -1 "$res/scaling.tsv")"
 done
+
+if [[ $quick == 0 ]]; then
+  # Issue 12: the whole pipeline on 2048x1216 stacks past several brick rows (one and two
+  # threads, CPU per slice), the pack stage against zstd -3 -T2, and peak memory as they grow.
+  real_slices=${VISPACK_BENCH_REAL_SLICES:-128 256 512}
+  stamp "Whole pipeline at the real slice size: 2048x1216, $real_slices slices (ping-pong stacks of vhp-raw-64)"
+  real_base=$(phantom vhp-raw-64 vhp 64 --rgb-raw)
+  # shellcheck disable=SC2086  # the slice counts are separate arguments
+  "$py" "$root/scripts/bench/real_size.py" "$real_base" "$res/real_size.json" $real_slices 2>"$res/real_size.log" ||
+    { tail -30 "$res/real_size.log"; fail "real-size pipeline runs failed"; }
+fi
 
 stamp "Stages one by one: time per slice on 1 and 2 threads, error against truth (issue 4)"
 if [[ $quick == 1 ]]; then stage_phantom=$(phantom tiny tiny); else stage_phantom=$(phantom vhp-8 vhp 8); fi

@@ -17,7 +17,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import matplotlib.ticker  # noqa: E402,F401
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from common import pair_error_px, rms  # noqa: E402
+from common import median, pair_error_px, rms  # noqa: E402
 import machine  # noqa: E402
 
 PEER = dict(color="crimson", marker="X", markersize=11, linestyle="--", linewidth=1.2)
@@ -697,6 +697,97 @@ class Report:
             return ""
 
     # ---- scaling ------------------------------------------------------------------------
+    # ---- real size (issue 12) -----------------------------------------------------------
+    def real_size(self):
+        r = load(self.res, "real_size.json")
+        self.w("## Whole pipeline at the real slice size (issue #12)\n")
+        if not r or not r["runs"]:
+            self.w("Not measured.\n")
+            return
+        n0 = r["counts"][0]
+        first = [x for x in r["runs"] if x["slices"] == n0]
+        one = [x for x in first if x["threads"] == 1]
+        two = [x for x in first if x["threads"] == 2]
+        mem = r["memory"]
+        w, h = mem[0]["dims"][0], mem[0]["dims"][1]
+        self.w(f"Input: stacks of {w}×{h} colour slices (planar `.raw`, as NLM ships them) with CT and "
+               f"segmentation, {', '.join(map(str, r['counts']))} slices, linked in ping-pong order from the "
+               f"`{r['base']}` phantom (`scripts/bench/real_size.py`: consecutive slices stay neighbours; the "
+               "content repeats, so these runs measure cost and memory, not accuracy). "
+               f"`vispack-run CONFIG --force --threads T` under `/usr/bin/time -v`; on {n0} slices T = 1 and 2 "
+               f"interleaved, {r['reps']} rounds, medians. Load average at the start: "
+               f"{', '.join(fmt(x) for x in r['load_at_start'])} (2 cores).\n")
+
+        def med(rows, key):
+            return median([x[key] for x in rows]) if rows else float("nan")
+
+        stages = sorted({k for x in first for k in x["stages_s"]},
+                        key=lambda k: ["register", "mask", "labels", "stream", "pack", "vdb"].index(k)
+                        if k in ["register", "mask", "labels", "stream", "pack", "vdb"] else 99)
+        rows = []
+        for t, rs in ((1, one), (2, two)):
+            if not rs:
+                continue
+            rows.append([t, fmt(med(rs, "wall_s") / n0), fmt(med(rs, "cpu_s") / n0), fmt(med(rs, "peak_rss_mib"))]
+                        + [fmt(median([x["stages_s"].get(k, 0.0) for x in rs]) / n0) for k in stages])
+        self.w(table(["threads", "wall s / slice", "CPU s / slice (whole process)", "peak RSS MiB"]
+                     + [f"{k} wall s / slice" for k in stages], rows))
+        cpu1 = med(one, "cpu_s") / n0 if one else float("nan")
+        speedup = med(one, "wall_s") / med(two, "wall_s") if one and two else float("nan")
+        male = 1871
+        self.w(f"One thread: **{fmt(cpu1)} CPU s per slice** (goal ≤ 0.3: **{'met' if cpu1 <= 0.3 else 'not met'}**). "
+               f"Two threads against one, wall time: **{speedup:.2f}×** (goal ≥ 1.7× on an idle machine: "
+               f"**{'met' if speedup >= 1.7 else 'not met'}**"
+               + ("; the machine was not idle, see the load above" if r["load_at_start"][0] > 0.5 else "") + "). "
+               f"The NLM male (2048×1216×{male:,}), extrapolated linearly from these runs: "
+               f"{fmt(cpu1 * male / 3600)} CPU hours on one thread, "
+               f"{fmt(med(two, 'wall_s') / n0 * male / 3600)} h wall on two threads.\n")
+        pz = r.get("pack_vs_zstd")
+        if pz:
+            ratio = pz["pack_wall_s"] / pz["zstd_wall_s"]
+            self.w(f"Pack against `zstd -3 -T2` of the same level-0 raw bytes ({fmt(pz['raw_bytes'] / 2**20)} MiB, "
+                   f"{pz['slices']} slices), interleaved, {r['reps']} rounds: `vispack-pack --force --threads 2` "
+                   f"{fmt(pz['pack_wall_s'])} s (its own stage time {fmt(pz['pack_stage_s'])} s; it also rebuilds "
+                   f"the registered colour and CT from the inputs and reads the masks and labels), zstd "
+                   f"{fmt(pz['zstd_wall_s'])} s: **{ratio:.2f}×** (goal ≤ 1.25×: **{'met' if ratio <= 1.25 else 'not met'}**). "
+                   f"Stored: {fmt(pz['vpk_bytes'] / 2**20)} MiB with every level against zstd's "
+                   f"{fmt(pz['zstd_bytes'] / 2**20)} MiB for level 0 alone "
+                   f"({pz['vpk_bytes'] / pz['zstd_bytes']:.2f}×).\n")
+            self.summary.append([f"pack vs zstd -3 -T2 ({w}×{h}, wall, interleaved)", f"{fmt(pz['pack_wall_s'])} s",
+                                 f"{fmt(pz['zstd_wall_s'])} s", f"{ratio:.2f}× (goal ≤ 1.25×)"])
+        bound_mib = 300e6 / 2**20
+        mrows = []
+        for m in mem:
+            limit = m["brick_row_mib"] + bound_mib
+            mrows.append([m["slices"], fmt(m["run_peak_rss_mib"]), fmt(m.get("pack_peak_rss_mib")),
+                          fmt(m.get("vdb_peak_rss_mib")), fmt(m["brick_row_mib"]), fmt(limit),
+                          "**met**" if m.get("pack_peak_rss_mib", 1e18) <= limit else "**not met**",
+                          m.get("vdb_report", {}).get("chosen_level", m.get("vdb_report", {}).get("level", "–"))])
+        self.w("Peak resident memory (MiB) as the stack grows; the pack goal is one level-0 brick row of the "
+               f"output (x × y × brick edge {mem[0]['brick_edge']} × {mem[0]['bytes_per_voxel']} bytes per voxel over "
+               "the stored channels) + 300 MB, flat in the slice count:\n")
+        self.w(table(["slices", "vispack-run (2 threads)", "vispack-pack", "vispack-vdb", "one brick row",
+                      "pack goal: row + 300 MB", "pack within?", "vdb level exported"], mrows))
+        self.summary.append([f"whole pipeline, {w}×{h} (" + "/".join(map(str, r["counts"])) + " slices)",
+                             f"{fmt(cpu1)} CPU s/slice on 1 thread; 2 threads {speedup:.2f}×",
+                             "goals: ≤ 0.3 CPU s/slice; ≥ 1.7×",
+                             "pack peak " + "/".join(fmt(m.get("pack_peak_rss_mib")) for m in mem) + " MiB"])
+        fig, ax = plt.subplots(figsize=(7.5, 4.5))
+        xs = [m["slices"] for m in mem]
+        for key, label in (("run_peak_rss_mib", "vispack-run (whole pipeline, 2 threads)"),
+                           ("pack_peak_rss_mib", "vispack-pack"), ("vdb_peak_rss_mib", "vispack-vdb")):
+            if all(key in m for m in mem):
+                ax.plot(xs, [m[key] for m in mem], label=label, **OURS)
+        ax.plot(xs, [m["brick_row_mib"] + bound_mib for m in mem], color="gray", linestyle=":",
+                label="pack goal: one brick row + 300 MB")
+        ax.set_xlabel(f"slices ({w}×{h} each)")
+        ax.set_ylabel("peak resident memory (MiB)")
+        ax.set_ylim(bottom=0)
+        ax.set_title("Peak memory at the real slice size")
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8)
+        self.save(fig, "real_size_memory.png", "peak memory against the slice count at 2048x1216")
+
     def scaling(self):
         path = os.path.join(self.res, "scaling.tsv")
         self.w("## Cost as the work grows: whole pipeline\n")
@@ -909,7 +1000,7 @@ class Report:
     def write(self):
         kept = self.kept_sections()
         self.header()
-        for name in ["stages", "registration", "mask", "pack", "viewer", "scaling",
+        for name in ["stages", "registration", "mask", "pack", "viewer", "scaling", "real_size",
                      "stage_memory", "format_details", "profiles"]:
             getattr(self, name)()
             for text in kept.pop(name, []):
