@@ -67,7 +67,7 @@ for w in 1 2; do
     --jobs-dir "$tmp/w$w/jobs" --wait >"$tmp/w$w.out" 2>&1 || { cat "$tmp/w$w.out"; exit 1; }
   eval "wall_$w=$(elapsed "$t")"
   cmp -s "$tmp/local/out/volume.vpk" "$tmp/w$w/out/volume.vpk" || { echo "w$w: packed file differs"; exit 1; }
-  echo "vhp-$slices: vispack-slurm --shards $w (8 jobs): $(eval echo "\$wall_$w") s (byte-identical)"
+  echo "vhp-$slices: vispack-slurm --shards $w ($(ls "$tmp/w$w/jobs/"*.sh | wc -l) jobs): $(eval echo "\$wall_$w") s (byte-identical)"
 done
 echo "vhp-$slices: speed-up 1 -> 2 workers: $(awk -v a="$wall_1" -v b="$wall_2" 'BEGIN { printf "%.2f", a / b }')x (whole chain, overhead included)"
 stop_one_node_slurm

@@ -21,12 +21,12 @@ config="$tmp/my dir/config.json"
 [[ ! -e $tmp/jobs ]] || fail "--dry-run wrote the jobs folder"
 mapfile -t scripts < <(sed -n 's/^### \([^ ]*\.sh\)$/\1/p' "$tmp/dry.out")
 names=$(for s in "${scripts[@]}"; do basename "$s"; done | tr '\n' ' ')
-expected="01-register-measure.sh 02-register-solve.sh 03-register-apply.sh 04-mask.sh 05-labels.sh 06-pack.sh 07-pack-merge.sh 08-vdb.sh "
+expected="01-register-measure.sh 02-register-solve.sh 03-slices.sh 04-pack.sh 05-pack-merge.sh 06-vdb.sh "
 [[ $names == "$expected" ]] || fail "jobs: '$names', expected '$expected'"
-[[ $(grep -c '^### sbatch --parsable --kill-on-invalid-dep=yes --dependency=afterok:<' "$tmp/dry.out") == 7 ]] ||
+[[ $(grep -c '^### sbatch --parsable --kill-on-invalid-dep=yes --dependency=afterok:<' "$tmp/dry.out") == 5 ]] ||
   fail "every job but the first must depend on the previous one with afterok"
-[[ $(grep -c '^#SBATCH --array=0-2$' "$tmp/dry.out") == 5 ]] || fail "5 sharded stages with --array=0-2"
-[[ $(grep -c '^#SBATCH --partition=short$' "$tmp/dry.out") == 8 ]] || fail "--partition in every job"
+[[ $(grep -c '^#SBATCH --array=0-2$' "$tmp/dry.out") == 3 ]] || fail "3 sharded jobs (measure, per-slice stages, pack) with --array=0-2"
+[[ $(grep -c '^#SBATCH --partition=short$' "$tmp/dry.out") == 6 ]] || fail "--partition in every job"
 grep -q 'sacct' "$tmp/dry.out" && fail "the job scripts must not use sacct"
 
 # Run the printed scripts as SLURM would: split them out, each array task with its ID, in order.
@@ -34,7 +34,7 @@ mkdir -p "$tmp/run"
 awk -v dir="$tmp/run" '/^### sbatch/ { f = ""; next }
                        /^### \// { n++; f = sprintf("%s/%02d.sh", dir, n); next }
                        f { print > f }' "$tmp/dry.out"
-[[ $(ls "$tmp/run" | wc -l) == 8 ]] || fail "could not split the 8 job scripts out of the dry run"
+[[ $(ls "$tmp/run" | wc -l) == 6 ]] || fail "could not split the 6 job scripts out of the dry run"
 for script in "$tmp"/run/*.sh; do
   if grep -q '^#SBATCH --array=0-2$' "$script"; then
     for i in 0 1 2; do SLURM_ARRAY_TASK_ID=$i bash "$script" || fail "$script task $i"; done

@@ -75,18 +75,19 @@ if "$root/scripts/vispack-slurm" "$tmp/slurm/config.json" --shards "$shards" --b
      --jobs-dir "$tmp/slurm/jobs" --partition vispack --wait >"$tmp/slurm.out" 2>&1; then
   echo "time: vispack-slurm, $shards shards: $(elapsed "$t") s ($(ls "$tmp"/slurm/jobs/*.sh | wc -l) jobs)"
   compare slurm
-  # A failed shard is resubmitted alone: mask shard 1 loses an output; only that array task runs
-  # again, and only the lost slice is recomputed (the stage's resume).
+  # A failed shard is resubmitted alone: mask shard 1 loses an output; only that array task of the
+  # per-slice job runs again, and only the lost slice is recomputed (the stages' resume: its
+  # register and labels steps find everything up to date).
   rm "$tmp/slurm/work/mask/mask_0010.png"
   n=$("$bin/vispack-run" "$tmp/slurm/config.json" --plan | sed -n 's/^slices //p')
   a=$((1 * n / shards)) b=$((2 * n / shards))
-  sbatch --wait --array=1 --kill-on-invalid-dep=yes "$tmp/slurm/jobs/04-mask.sh" >/dev/null ||
-    fail "resubmitted mask task 1 failed"
+  sbatch --wait --array=1 --kill-on-invalid-dep=yes "$tmp/slurm/jobs/03-slices.sh" >/dev/null ||
+    fail "resubmitted per-slice task 1 failed"
   processed=$(grep -o '"processed": *[0-9]*' "$tmp/slurm/work/mask/report-$a-$b.json" | grep -o '[0-9]*$')
   if [[ -f $tmp/slurm/work/mask/mask_0010.png && $processed == 1 ]]; then
-    echo "PASS: mask array task 1 resubmitted alone recomputed its one lost slice"
+    echo "PASS: per-slice array task 1 resubmitted alone recomputed its one lost mask"
   else
-    fail "resubmitted mask task 1: processed '$processed' slices (expected 1)"
+    fail "resubmitted per-slice task 1: mask processed '$processed' slices (expected 1)"
   fi
 else
   cat "$tmp/slurm.out"
