@@ -435,7 +435,7 @@ cv::Mat LabelsStageJob::compute(int k) {
     for (int x = 0; x < out.cols; ++x)
       if (row[x] != last && row[x] != 0) ids_here.insert(last = row[x]);
   }
-  write_image(out_path, out);
+  write_image(out_path, out, 90, kWorkPngLevel);
   {
     std::lock_guard<std::mutex> lock(mutex_);
     for (const auto& u : stats.first_unmatched)
