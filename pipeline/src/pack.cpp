@@ -96,6 +96,15 @@ struct PackPlan {
   std::string input;  // the whole pack's input fingerprint (a merge records the same)
 };
 
+// The whole pack's input fingerprint: every intermediate it reads as the work folder holds them
+// now, the palette and the output path.
+std::string pack_input_fingerprint(const Config& config, const StackInputs& inputs) {
+  Fingerprint fp = intermediates_fingerprint(config, inputs);
+  if (config.seg && !config.seg->palette.empty()) fp.file(config.seg->palette);
+  fp.text(config.output);
+  return fp.str();
+}
+
 PackPlan plan_pack(const Config& config, const StageOptions& options) {
   PackPlan plan;
   plan.inputs = read_stack_inputs(config);
@@ -110,10 +119,7 @@ PackPlan plan_pack(const Config& config, const StageOptions& options) {
   plan.has_labels = has_labels;
 
   // One unit of work: its input fingerprint covers every intermediate read.
-  Fingerprint fp = intermediates_fingerprint(config, inputs);
-  if (has_labels && !config.seg->palette.empty()) fp.file(config.seg->palette);
-  fp.text(config.output);
-  plan.input = fp.str();
+  plan.input = pack_input_fingerprint(config, inputs);
 
   const int f = config.pack.downsample;
   plan.f = f;
@@ -266,12 +272,22 @@ struct SliceBuffers {
 
 // Reads stack slice k's intermediates into slice `z` of `out`, converted to the output grid;
 // adds the label IDs seen to `ids_seen`. Returns the decoded bytes read.
+std::uint64_t convert_pack_slice(const PackPlan& plan, Intermediates in, SliceBuffers& out, int z,
+                                 std::set<std::uint16_t>& ids_seen);
+
 std::uint64_t read_pack_slice(const Config& config, const PackPlan& plan, int k, SliceBuffers& out,
                               int z, std::set<std::uint16_t>& ids_seen) {
+  return convert_pack_slice(plan, read_intermediates(config, plan.inputs, k), out, z, ids_seen);
+}
+
+// Converts one slice's intermediates (read_intermediates: cleared outside the body) to slice `z`
+// of `out` on the output grid (crop, downsampling); the one conversion of the staged pack, the
+// shards and the streaming run. Returns the decoded bytes the intermediates stand for.
+std::uint64_t convert_pack_slice(const PackPlan& plan, Intermediates in, SliceBuffers& out, int z,
+                                 std::set<std::uint16_t>& ids_seen) {
   const int f = plan.f;
   const cv::Size out_size = plan.out_size;
   const std::size_t plane = std::size_t(out_size.width) * out_size.height;
-  Intermediates in = read_intermediates(config, plan.inputs, k);
   if (plan.cropped) {
     in.rgb = in.rgb(plan.box);
     in.mask = in.mask(plan.box);
@@ -678,6 +694,76 @@ StageResult run_pack_merge(const Config& config, const StageOptions& options) {
   report_pack(run, config, plan, ids_seen, bytes);
   run.set_report("merged_slabs", slabs);
   return run.finish(config.output);
+}
+
+// ---- PackStream: the whole pack fed from memory (the streaming vispack-run) ----
+
+struct PackStream::Slice {
+  SliceBuffers buffers;
+  std::set<std::uint16_t> ids;
+  std::uint64_t bytes = 0;
+  explicit Slice(const PackPlan& plan) : buffers(plan, 1) {}
+};
+
+struct PackStream::Impl {
+  const Config& config;
+  PackPlan plan;
+  StageRun run;
+  std::unique_ptr<format::Writer> writer;
+  std::set<std::uint16_t> ids_seen;
+  std::uint64_t bytes = 0;
+  int appended = 0;
+  Impl(const Config& c, const StageOptions& options, const StageOptions& unit)
+      : config(c), plan(plan_pack(c, options)), run(c, "pack", 1, unit, kPackSections) {}
+};
+
+bool PackStream::streamable(const Config& config) {
+  return !config.pack.crop_margin_px && (!config.seg || !config.seg->palette.empty());
+}
+
+PackStream::PackStream(const Config& config, const StageOptions& options) {
+  if (!streamable(config))
+    throw UsageError("the pack needs every slice first (pack.crop_margin_px or no palette)");
+  StageOptions unit = options;
+  unit.slices.clear();
+  impl_ = std::make_unique<Impl>(config, options, unit);
+  impl_->run.remove_stale_temporaries_of(config.output);
+  make_directories(fs::path(config.output).parent_path().string());
+  impl_->writer = std::make_unique<format::Writer>(config.output, impl_->plan.wo);
+}
+
+PackStream::~PackStream() = default;
+
+void PackStream::SliceDeleter::operator()(Slice* slice) const {
+  delete slice;
+}
+
+PackStream::SlicePtr PackStream::convert(Intermediates in) const {
+  SlicePtr slice(new Slice(impl_->plan));
+  slice->bytes = convert_pack_slice(impl_->plan, std::move(in), slice->buffers, 0, slice->ids);
+  return slice;
+}
+
+void PackStream::append(SlicePtr slice) {
+  Impl& d = *impl_;
+  d.writer->append_slice(slice->buffers.slice(d.plan, 0));
+  if (test_pause_enabled()) test_pause_point(cat("append:pack:", d.appended));  // test_pause.h
+  ++d.appended;
+  d.ids_seen.insert(slice->ids.begin(), slice->ids.end());
+  d.bytes += slice->bytes;
+  d.run.add_bytes(0);
+}
+
+StageResult PackStream::finish() {
+  Impl& d = *impl_;
+  d.writer->finish();
+  d.writer.reset();
+  // The masks and labels were written during the stream: the fingerprint a later whole pack
+  // computes is the one of the work folder now, not the one plan_pack saw at the start.
+  d.plan.input = pack_input_fingerprint(d.config, d.plan.inputs);
+  d.run.done(0, d.plan.input, {d.config.output}, d.bytes);
+  report_pack(d.run, d.config, d.plan, d.ids_seen, d.bytes);
+  return d.run.finish(d.config.output);
 }
 
 }  // namespace vispack::pipeline

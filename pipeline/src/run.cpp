@@ -9,6 +9,7 @@
 #include "vispack/pipeline/mask_stage.h"
 #include "vispack/pipeline/pack.h"
 #include "vispack/pipeline/register_stage.h"
+#include "vispack/pipeline/stream.h"
 #include "vispack/pipeline/vdb.h"
 #include "vispack/pipeline/work_layout.h"
 
@@ -36,8 +37,18 @@ std::vector<StageResult> run_pipeline(const Config& config, const RunOptions& op
   stage_options.quiet = options.quiet;
   stage_options.threads = options.threads;
   std::vector<StageResult> results;
+  // Streaming (stream.h): mask, labels and pack in one pass, when the range holds all three.
+  const int mask_at = position("mask", 0), pack_at = position("pack", 0);
+  const bool stream = !options.staged && from <= mask_at && to >= pack_at;
   for (int i = from; i <= to; ++i) {
     const std::string& name = names[i];
+    if (stream && i > mask_at && i <= pack_at) continue;  // done by run_stream at "mask"
+    if (stream && i == mask_at) {
+      if (test_pause_enabled()) test_pause_point("before:mask");
+      for (auto& r : run_stream(config, stage_options))
+        results.push_back(r);
+      continue;
+    }
     if (name == "labels" && !config.seg) continue;
     if (name == "vdb" && (!config.vdb.enabled || config.vdb_output.empty())) continue;
     if (test_pause_enabled()) test_pause_point("before:" + name);

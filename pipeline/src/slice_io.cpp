@@ -237,7 +237,7 @@ cv::Mat read_slice(const std::string& path, const std::optional<RawLayout>& raw)
   return read_oiio(path);
 }
 
-void write_image(const std::string& path, const cv::Mat& image, int jpeg_quality) {
+void write_image(const std::string& path, const cv::Mat& image, int jpeg_quality, int png_level) {
   if (image.empty() || image.dims != 2) throw IoError(cat(path, ": cannot write an empty image"));
   const int depth = image.depth();
   if (depth != CV_8U && depth != CV_16U) {
@@ -253,6 +253,7 @@ void write_image(const std::string& path, const cv::Mat& image, int jpeg_quality
   view.row_bytes = image.step[0];
   ImageWriteOptions options;
   options.jpeg_quality = jpeg_quality;
+  options.png_level = png_level;
   write_image_file(path, view, options);
 }
 

@@ -222,6 +222,11 @@ void StageRun::done(int index, const std::string& input_fingerprint,
   if (test_pause_enabled()) test_pause_point(cat("done:", stage_, ":", index));
 }
 
+void StageRun::flush() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  flush_manifest_locked(false);
+}
+
 void StageRun::skip(int index) {
   {
     std::lock_guard<std::mutex> lock(mutex_);

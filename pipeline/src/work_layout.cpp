@@ -22,6 +22,8 @@ std::string padded(int index) {
   return buffer;
 }
 
+}  // namespace
+
 cv::Mat read_checked(const std::string& path, int type, cv::Size size) {
   if (!fs::exists(path))
     throw InputError(cat(path, ": missing intermediate (run the earlier stages first)"));
@@ -37,8 +39,6 @@ cv::Mat read_checked(const std::string& path, int type, cv::Size size) {
         cat(path, ": is ", m.cols, "x", m.rows, ", expected ", size.width, "x", size.height));
   return m;
 }
-
-}  // namespace
 
 std::string stage_dir(const Config& config, const std::string& stage) {
   return config.work_dir + "/" + stage;
@@ -206,6 +206,12 @@ Intermediates read_intermediates(const Config& config, const StackInputs& inputs
     in.labels = read_checked(labels_path(config, index), CV_16UC1, size);
     in.bytes += in.labels.total() * 2;
   }
+  clear_outside_body(config, in);
+  return in;
+}
+
+void clear_outside_body(const Config& config, Intermediates& in) {
+  const cv::Size size = in.mask.size();
   // Issue 12: store only what a scene needs. Gel outside the body varies from voxel to voxel
   // (texture, noise), so not one brick of it would be uniform; cleared, it costs nothing.
   const bool clear_rgb = !config.pack.keep_colour_outside_body;
@@ -222,7 +228,6 @@ Intermediates read_intermediates(const Config& config, const StackInputs& inputs
       }
     }
   }
-  return in;
 }
 
 cv::Rect body_bounds(const Config& config, int slice_count, cv::Size size) {

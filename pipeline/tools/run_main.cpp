@@ -9,16 +9,23 @@
 int main(int argc, char** argv) {
   using namespace vispack;
   return run_main("vispack-run", argc, argv, [](Args& args) {
-    args.describe("CONFIG [--from STAGE] [--to STAGE] [--force] [--quiet] [--threads N] [--plan]",
-                  "Runs register -> mask -> labels -> pack -> vdb on the config's slice folders "
-                  "(labels only with a seg section, vdb only when enabled), skipping slices and "
-                  "stages whose outputs are up to date with their inputs and config, and prints "
-                  "where each output is.");
+    args.describe(
+        "CONFIG [--from STAGE] [--to STAGE] [--force] [--quiet] [--threads N] [--staged] "
+        "[--plan]",
+        "Runs register -> mask -> labels -> pack -> vdb on the config's slice folders "
+        "(labels only with a seg section, vdb only when enabled), skipping slices and "
+        "stages whose outputs are up to date with their inputs and config, and prints "
+        "where each output is. By default mask, labels and pack run as one streaming "
+        "pass after register (each slice read once, its work spread over the threads, "
+        "the same files and manifests as the stages run one by one); vdb follows.");
     pipeline::RunOptions options;
     options.from = args.option("--from", "STAGE", "first stage to run", "register");
     options.to = args.option("--to", "STAGE", "last stage to run", "vdb");
     options.force = args.flag("--force", "recompute every stage in range");
     options.quiet = args.flag("--quiet", "no progress output");
+    options.staged = args.flag("--staged",
+                               "run mask, labels and pack one after another, each re-reading "
+                               "the work folder (instead of the one streaming pass)");
     auto threads = args.option_int("--threads", "N", "worker threads (default: all cores)");
     const bool plan = args.flag("--plan",
                                 "print \"slices N\" and \"stages ...\" (the stages the config "

@@ -40,8 +40,11 @@
 // the "pack", "spacing_mm", "name" config sections; the output file's identity is recorded.
 #pragma once
 
+#include <memory>
+
 #include "vispack/pipeline/config.h"
 #include "vispack/pipeline/stage_run.h"
+#include "vispack/pipeline/work_layout.h"
 
 namespace vispack::pipeline {
 
@@ -54,5 +57,45 @@ StageResult run_pack_stage(const Config& config, const StageOptions& options);
 // Throws UsageError (options.slices set), InputError (a slab file missing, foreign or out of
 // date, naming it and the shard to rerun), FormatError (a corrupt slab file), IoError.
 StageResult run_pack_merge(const Config& config, const StageOptions& options);
+
+// The whole-stack pack fed from memory, one slice at a time in z order: the streaming vispack-run
+// (stream.h). Same plan, per-slice conversion, Writer and pack manifest record as the whole-stack
+// run_pack_stage, so the file is byte-identical and a later vispack-pack finds it up to date.
+// Thread-safety: convert() may be called concurrently; append() and finish() from one thread at a
+// time. Destroyed without finish(), it leaves config.output untouched (the Writer's temporary is
+// removed) and records nothing.
+class PackStream {
+ public:
+  // False where the plan needs every slice's intermediates before the first one is packed:
+  // pack.crop_margin_px set (the box is the union of all body masks) or segmentation without a
+  // palette (the label table is the labels stage report's "ids_present"). The streaming run then
+  // writes masks and labels first and packs from the work folder (run_pack_stage).
+  static bool streamable(const Config& config);
+  // Plans the pack and opens the Writer. Throws UsageError when !streamable(config); otherwise
+  // as run_pack_stage.
+  PackStream(const Config& config, const StageOptions& options);
+  ~PackStream();
+  PackStream(const PackStream&) = delete;
+  PackStream& operator=(const PackStream&) = delete;
+
+  // One slice converted to the writer's buffers (opaque; deleted by pack.cpp).
+  struct Slice;
+  struct SliceDeleter {
+    void operator()(Slice* slice) const;
+  };
+  using SlicePtr = std::unique_ptr<Slice, SliceDeleter>;
+  // Converts the intermediates of one slice, as read_intermediates would return them (use
+  // clear_outside_body), to the packed grid.
+  SlicePtr convert(Intermediates in) const;
+  // Appends the next slice (z order: the k-th call appends stack slice k).
+  void append(SlicePtr slice);
+  // Commits the file and records the pack unit with the input fingerprint of the work folder as
+  // it is now (call it after every mask and label file is written and recorded).
+  StageResult finish();
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
 
 }  // namespace vispack::pipeline

@@ -1,6 +1,11 @@
 // vispack-run: every stage in order, in-process, skipping what is up to date.
 //
-// Order: register -> mask -> labels -> pack -> vdb. "labels" is skipped when the config has no
+// Order: register -> mask -> labels -> pack -> vdb. By default (streaming, stream.h) mask,
+// labels and pack run as one pass over the stack when [from, to] holds all three: register
+// first (its global solve needs the whole stack), then the one pass, then vdb. With `staged`
+// (vispack-run --staged) each stage runs on its own, one after another, re-reading its inputs
+// from the work folder. Both give the same files (the packed file byte for byte) and the same
+// stage manifests. "labels" is skipped when the config has no
 // "seg" section, "vdb" when vdb.enabled is false; "register" with register.enabled = false is
 // still called (it writes identity transforms and copies the slices, per register.h).
 // Each stage decides per slice (or per output file) what is stale (stage.h), so a second run
@@ -25,6 +30,7 @@ struct RunOptions {
   bool force = false;  // recompute every stage in [from, to]
   bool quiet = false;
   int threads = 0;
+  bool staged = false;  // one stage after another instead of the streaming pass
 };
 
 // Runs the stages [from, to] that the config enables. Throws UsageError for an unknown stage

@@ -49,9 +49,16 @@ cv::Mat read_slice(const std::string& path, const std::optional<RawLayout>& raw 
 // `image`: CV_8U or CV_16U with 1, 3 or 4 channels in RGB(A) order (JPEG, BMP: 8-bit, 1 or 3
 // channels).
 // The bytes are deterministic for the same image and quality (no timestamps, fixed compression
-// settings). `jpeg_quality` is 1..100. Throws IoError naming the path (cannot write, unsupported
-// extension or pixel type).
-void write_image(const std::string& path, const cv::Mat& image, int jpeg_quality = 90);
+// settings). `jpeg_quality` is 1..100, `png_level` the zlib level 0..9 of a PNG. Throws IoError
+// naming the path (cannot write, unsupported extension or pixel type).
+void write_image(const std::string& path, const cv::Mat& image, int jpeg_quality = 90,
+                 int png_level = 4);
+
+// The zlib level of the per-slice work-folder PNGs (masks, overlays, label slices): level 1
+// encodes the 2048x1216 mask, label slice and overlay in ~40 ms instead of ~80 ms at level 4;
+// the overlay (most of the work folder) grows ~2 %, the mask and label PNGs (tens of kB) ~2x
+// (measured by hand, docs/BENCHMARKS.md "Streaming run").
+constexpr int kWorkPngLevel = 1;
 
 // Writes a header-less raw slice in `layout` (planar or interleaved, 8 or 16 bit, byte order;
 // `header_bytes` zero bytes first), atomically. The image must match layout.width/height/channels

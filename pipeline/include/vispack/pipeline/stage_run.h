@@ -132,6 +132,9 @@ class StageRun {
   // `bytes` (input bytes read) feeds the report's MB/s.
   void done(int index, const std::string& input_fingerprint,
             const std::vector<std::string>& outputs, std::uint64_t bytes = 0);
+  // Writes the manifest now with the slices recorded so far (done() writes it at most every
+  // 2 s): for a run that stops on an error and wants its finished slices kept for the resume.
+  void flush();
   // Advances the progress for a slice found up to date.
   void skip(int index);
   void add_bytes(std::uint64_t bytes);

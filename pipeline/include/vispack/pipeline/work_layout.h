@@ -107,6 +107,16 @@ constexpr std::uint16_t kOutsideBodyCt16 = 32768 - 1024;
 // pixel type.
 Intermediates read_intermediates(const Config& config, const StackInputs& inputs, int index);
 
+// An intermediate image of the work folder (a mask or label PNG), checked: throws InputError
+// naming `path` when it is missing ("run the earlier stages first") or is not of `type`
+// (CV_8UC1, CV_8UC3 or CV_16UC1) and `size`.
+cv::Mat read_checked(const std::string& path, int type, cv::Size size);
+
+// The clearing step of read_intermediates, for intermediates built in memory (the streaming
+// vispack-run, stream.h): colour 0 and CT −1024 HU where in.mask == 0, as config.pack asks.
+// `in` must hold rgb and mask (and ct when the config has CT) of one size.
+void clear_outside_body(const Config& config, Intermediates& in);
+
 // The union over stack slices [0, slice_count) of the bounding boxes of the body masks
 // (<work>/mask/mask_NNNN.png, non-zero pixels), in output-grid pixels; an empty rect when no
 // slice has body. Throws InputError as read_intermediates does for a missing or wrong mask.

@@ -1,0 +1,178 @@
+// The streaming vispack-run (stream.h) against the staged one: the same packed file byte for byte
+// and the same mask, overlay and label PNGs (plain, cropped, keeping what lies outside the body);
+// each finds the other's work up to date; a stream stopped by an error resumes without
+// recomputing the slices it finished; a changed slice or config section reruns what depends on it.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <map>
+
+#include "test_support.h"
+#include "vispack/common/atomic_file.h"
+#include "vispack/common/error.h"
+#include "vispack/phantom/phantom.h"
+#include "vispack/pipeline/register_stage.h"
+#include "vispack/pipeline/run.h"
+#include "vispack/pipeline/stream.h"
+#include "vispack/pipeline/work_layout.h"
+
+using namespace vispack;
+using namespace vispack::pipeline;
+namespace fs = std::filesystem;
+
+namespace {
+
+constexpr int kSlices = 24;  // the tiny preset
+
+// The tiny phantom (CT, colour segmentation with a palette, a black and a duplicated slice) in
+// `dir`, its config patched with `patch` (JSON merge patch) and 8-slice bricks (three slabs).
+Config make_case(const test::TempDir& dir, const nlohmann::json& patch) {
+  phantom::PhantomOptions po;
+  po.preset = "tiny";
+  po.seed = 7;
+  po.defects = true;
+  po.quiet = true;
+  phantom::make_phantom(dir.path(), po);
+  auto j = nlohmann::json::parse(read_file(dir / "config.json"));
+  j["pack"]["brick_edge"] = 8;
+  j.merge_patch(patch);
+  write_file_atomic(dir / "config.json", j.dump(2));
+  return load_config(dir / "config.json");
+}
+
+std::map<std::string, StageResult> run(const Config& config, bool staged, int threads,
+                                       bool force = false) {
+  RunOptions options;
+  options.quiet = true;
+  options.staged = staged;
+  options.threads = threads;
+  options.force = force;
+  options.to = "pack";
+  std::map<std::string, StageResult> out;
+  for (const auto& r : run_pipeline(config, options))
+    out[r.stage] = r;
+  return out;
+}
+
+// The packed file and every mask, overlay and label PNG of `b` equal those of `a`, byte for byte.
+void expect_same_products(const Config& a, const Config& b) {
+  ASSERT_TRUE(fs::exists(a.output));
+  ASSERT_TRUE(fs::exists(b.output));
+  EXPECT_TRUE(read_file(a.output) == read_file(b.output)) << "packed files differ";
+  for (int k = 0; k < kSlices; ++k) {
+    for (const auto& [x, y] : {std::pair{mask_path(a, k), mask_path(b, k)},
+                               std::pair{slice_output_path(a, "mask", "overlay", k),
+                                         slice_output_path(b, "mask", "overlay", k)},
+                               std::pair{labels_path(a, k), labels_path(b, k)}}) {
+      ASSERT_TRUE(fs::exists(x)) << x;
+      ASSERT_TRUE(fs::exists(y)) << y;
+      EXPECT_TRUE(read_file(x) == read_file(y)) << x << " differs from " << y;
+    }
+  }
+}
+
+void expect_up_to_date(const std::map<std::string, StageResult>& results) {
+  ASSERT_EQ(results.size(), 4u);
+  for (const auto& [name, r] : results)
+    EXPECT_EQ(r.processed, 0) << name << " recomputed although nothing changed";
+}
+
+// Staged in one folder (one thread), streaming in another (three threads: slices finish out of
+// order); same products; then each kind of run finds the other's work up to date.
+void check_stream_equals_staged(const nlohmann::json& patch) {
+  test::TempDir staged_dir, stream_dir;
+  const Config staged = make_case(staged_dir, patch);
+  const Config stream = make_case(stream_dir, patch);
+  auto s = run(staged, true, 1);
+  auto t = run(stream, false, 3);
+  for (const char* stage : {"mask", "labels"}) {
+    EXPECT_EQ(s[stage].processed, kSlices) << stage;
+    EXPECT_EQ(t[stage].processed, kSlices) << stage;
+  }
+  EXPECT_EQ(t["pack"].processed, 1);
+  expect_same_products(staged, stream);
+  expect_up_to_date(run(staged, false, 2));
+  expect_up_to_date(run(stream, true, 2));
+}
+
+}  // namespace
+
+TEST(Stream, SameFilesAsTheStagedRun) {
+  check_stream_equals_staged(nlohmann::json::object());
+}
+
+TEST(Stream, SameFilesAsTheStagedRunWithCrop) {
+  // The crop box is the union of every mask: the stream writes masks first, then packs.
+  check_stream_equals_staged({{"pack", {{"crop_margin_px", 3}}}});
+}
+
+TEST(Stream, SameFilesAsTheStagedRunKeepingOutsideBody) {
+  check_stream_equals_staged({{"pack", {{"keep_outside_body", "all"}}}});
+}
+
+TEST(Stream, ResumesAfterAnErrorWithoutRecomputingFinishedSlices) {
+  test::TempDir ref_dir, dir;
+  const Config ref = make_case(ref_dir, nlohmann::json::object());
+  const Config config = make_case(dir, nlohmann::json::object());
+  run(ref, true, 1);
+  StageOptions options;
+  options.quiet = true;
+  options.threads = 1;  // slices in stack order: 0..11 finish, slice 12 fails
+  run_register_stage(config, options);
+  const std::string victim = stack_slices(config)[12].path;
+  const std::string bytes = read_file(victim);
+  const auto mtime = fs::last_write_time(victim);
+  write_file_atomic(victim, "not a PNG");
+  try {
+    run_stream(config, options);
+    ADD_FAILURE() << "a corrupt slice must stop the stream";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find(victim), std::string::npos) << e.what();
+  }
+  EXPECT_FALSE(fs::exists(config.output)) << "a half-written packed file was left";
+  // The slice back as it was (same bytes, same mtime: register stays up to date).
+  write_file_atomic(victim, bytes);
+  fs::last_write_time(victim, mtime);
+  std::map<std::string, StageResult> resumed;
+  for (const auto& r : run_stream(config, options))
+    resumed[r.stage] = r;
+  EXPECT_EQ(resumed["mask"].processed, kSlices - 12);
+  EXPECT_EQ(resumed["mask"].skipped, 12);
+  EXPECT_EQ(resumed["labels"].processed, kSlices - 12);
+  EXPECT_EQ(resumed["labels"].skipped, 12);
+  EXPECT_EQ(resumed["pack"].processed, 1);
+  expect_same_products(ref, config);
+  expect_up_to_date(run(config, true, 1));
+}
+
+TEST(Stream, ChangedInputOrSectionRerunsWhatDependsOnIt) {
+  test::TempDir dir;
+  const Config config = make_case(dir, nlohmann::json::object());
+  run(config, false, 2);
+  // A seg slice rewritten (same content, new mtime): its labels and the pack rerun, no mask.
+  std::vector<SliceFile> seg = list_slices(*config.seg);
+  const std::string content = read_file(seg[5].path);
+  fs::last_write_time(seg[5].path, fs::last_write_time(seg[5].path) + std::chrono::seconds(5));
+  ASSERT_EQ(read_file(seg[5].path), content);
+  auto r = run(config, false, 2);
+  EXPECT_EQ(r["register"].processed, 0);
+  EXPECT_EQ(r["mask"].processed, 0);
+  EXPECT_EQ(r["labels"].processed, 1);
+  EXPECT_EQ(r["pack"].processed, 1);
+  // A mask key: every mask and the pack rerun, labels stay.
+  auto j = nlohmann::json::parse(read_file(dir / "config.json"));
+  j["mask"]["opening_px"] = 2;
+  write_file_atomic(dir / "config.json", j.dump(2));
+  const Config touched = load_config(dir / "config.json");
+  r = run(touched, false, 2);
+  EXPECT_EQ(r["register"].processed, 0);
+  EXPECT_EQ(r["mask"].processed, kSlices);
+  EXPECT_EQ(r["labels"].processed, 0);
+  EXPECT_EQ(r["pack"].processed, 1);
+  expect_up_to_date(run(touched, true, 1));
+  // --force recomputes every slice of the stream.
+  r = run(touched, false, 2, true);
+  EXPECT_EQ(r["mask"].processed, kSlices);
+  EXPECT_EQ(r["labels"].processed, kSlices);
+  EXPECT_EQ(r["pack"].processed, 1);
+}
