@@ -18,12 +18,39 @@
 #include "vispack/pipeline/register.h"
 #include "vispack/pipeline/register_stage.h"
 #include "vispack/pipeline/slice_io.h"
+#include "vispack/pipeline/transforms.h"
 #include "vispack/pipeline/work_layout.h"
 
 namespace vispack::pipeline {
 namespace {
 
 namespace fs = std::filesystem;
+
+constexpr int kOverlayEdge = 512;                     // longer edge of the QC overlay, px
+constexpr std::size_t kSmallCacheBytes = 256u << 20;  // overlay pictures kept between phases
+
+// `slice` (8/16-bit grey or RGB) as 8-bit RGB with its longer edge at most `max_edge` (INTER_AREA):
+// the picture the overlay draws on.
+cv::Mat overlay_picture(const cv::Mat& slice, int max_edge) {
+  cv::Mat out = shrink_to_edge(slice, max_edge);
+  if (out.depth() == CV_16U) out.convertTo(out, CV_8U, 255.0 / 65535.0);
+  if (out.channels() == 1) cv::cvtColor(out, out, cv::COLOR_GRAY2RGB);
+  return out;
+}
+
+// `picture` (an overlay_picture of a slice on a `grid`-sized stack) registered by `rigid`: the
+// warp registered_colour applies at full size, carried to the picture's pixel grid.
+cv::Mat warp_picture(const cv::Mat& picture, const Rigid& rigid, cv::Size grid) {
+  const double sx = double(picture.cols) / grid.width, sy = double(picture.rows) / grid.height;
+  const cv::Matx23d small_to_full{1.0 / sx, 0, 0.5 / sx - 0.5, 0, 1.0 / sy, 0.5 / sy - 0.5};
+  const cv::Matx23d full_to_small{sx, 0, 0.5 * sx - 0.5, 0, sy, 0.5 * sy - 0.5};
+  const cv::Matx23d m = compose_affine(
+      full_to_small, compose_affine(rigid_matrix(rigid, image_centre(grid)), small_to_full));
+  cv::Mat out;
+  cv::warpAffine(picture, out, cv::Mat(m), picture.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP,
+                 cv::BORDER_REPLICATE);
+  return out;
+}
 
 std::string pairs_path(const Config& config, int k) {
   return slice_output_path(config, "register", "pairs/pairs", k, "json");
@@ -127,9 +154,15 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
   }
   std::atomic<std::uint64_t> bytes{0};
   int pairs_computed = 0;
+  // The QC overlay's picture of each slice whose pairs this run computes, kept from that read
+  // (issue 12: each colour slice decoded once per run, not again for its overlay). Bounded:
+  // larger ranges read their slices again.
+  const bool keep_small = std::int64_t(range.size()) * kOverlayEdge * kOverlayEdge * 3 <=
+                          std::int64_t(kSmallCacheBytes);
+  std::vector<cv::Mat> small(keep_small ? std::size_t(n) : 0);
   if (first_missing <= last_missing) {
     // Every slice must have the first slice's size (issue 7: a slice replaced between runs).
-    const cv::Size stack_size = read_slice(files[0].path, config.rgb.raw).size();
+    const cv::Size stack_size = read_slice_size(files[0].path, config.rgb.raw);
     const double anchor_scale = anchored ? anchor_working_scale(config) : 0.0;
     auto frame = [&](int k) {
       cv::Mat slice = read_slice(files[std::size_t(k)].path, config.rgb.raw);
@@ -138,6 +171,8 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
                              ", the stack (", files[0].path, ") is ", stack_size.width, "x",
                              stack_size.height));
       bytes += slice.total() * slice.elemSize();
+      if (keep_small && k >= range.first && k < range.last)
+        small[std::size_t(k)] = overlay_picture(slice, kOverlayEdge);
       return prepare_frame(slice, reg, anchor_scale);
     };
     std::function<std::optional<AnchorEstimate>(int, const RegisterFrame&)> anchor;
@@ -175,7 +210,7 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
   }
   const std::string tpath = transforms_path(config);
   if (int(all.size()) == n && n > 0) {
-    const cv::Size size = read_slice(files[0].path, config.rgb.raw).size();
+    const cv::Size size = read_slice_size(files[0].path, config.rgb.raw);
     StackSolveOptions so;
     so.jump_px = reg.jump_px;
     so.overrides = overrides;
@@ -350,13 +385,24 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
         std::error_code ec;  // a copy from an earlier run must not outlive its transform
         fs::remove(out, ec);
       }
-      const cv::Mat registered = registered_colour(config, inputs, k);
-      if (write_registered) write_image(out, registered);
       cv::Mat hu;
       if (ct && st->ct_to_rgb) hu = read_ct_hu(*config.ct, ct->path);
-      write_image(overlay,
-                  draw_ct_overlay(registered, hu, st->ct_to_rgb ? *st->ct_to_rgb : Similarity{},
-                                  config.mask.hu_threshold));
+      const Similarity ct_to_rgb = st->ct_to_rgb ? *st->ct_to_rgb : Similarity{};
+      const cv::Mat& kept = keep_small ? small[std::size_t(k)] : cv::Mat();
+      if (!kept.empty() && !write_registered) {
+        // The overlay warped from the kept picture: the same slice, transform and outline as
+        // below, without decoding and warping the full-size slice again.
+        const cv::Mat registered_small = warp_picture(kept, t.rigid, inputs.size());
+        write_image(overlay,
+                    draw_ct_overlay(registered_small, hu, ct_to_rgb, config.mask.hu_threshold,
+                                    kOverlayEdge, inputs.size()));
+        run.done(k, in, outs, 0);
+        return;
+      }
+      const cv::Mat registered = registered_colour(config, inputs, k);
+      if (write_registered) write_image(out, registered);
+      write_image(overlay, draw_ct_overlay(registered, hu, ct_to_rgb, config.mask.hu_threshold,
+                                           kOverlayEdge));
       run.done(k, in, outs, registered.total() * registered.elemSize());
     });
   }

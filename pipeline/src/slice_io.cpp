@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <fstream>
 #include <system_error>
+#include <vector>
 
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
@@ -62,6 +63,19 @@ cv::Mat read_raw(const std::string& path, const RawLayout& raw, std::uint64_t fi
   const int type = CV_MAKETYPE(raw.bits == 8 ? CV_8U : CV_16U, raw.channels);
   cv::Mat image(raw.height, raw.width, type);
   const int channels = raw.channels;
+  if (bytes_per_sample == 1) {
+    // 8 bit (NLM's planar colour): whole planes, no per-sample work.
+    if (channels == 1 || !raw.planar) {
+      std::memcpy(image.data, data, pixels * channels);
+    } else {
+      std::vector<cv::Mat> planes;
+      for (int c = 0; c < channels; ++c)
+        planes.emplace_back(raw.height, raw.width, CV_8UC1,
+                            const_cast<std::uint8_t*>(data) + c * pixels);
+      cv::merge(planes, image);
+    }
+    return image;
+  }
   const bool swap = raw.bits == 16 && raw.big_endian;
   auto sample = [&](std::uint64_t i) -> std::uint16_t {
     if (bytes_per_sample == 1) return data[i];
@@ -235,6 +249,19 @@ cv::Mat read_slice(const std::string& path, const std::optional<RawLayout>& raw)
   if (raw) return read_raw(path, *raw, size);
   check_png_complete(path, size);
   return read_oiio(path);
+}
+
+cv::Size read_slice_size(const std::string& path, const std::optional<RawLayout>& raw) {
+  if (raw) return {raw->width, raw->height};
+  auto input = OIIO::ImageInput::open(path);
+  if (!input) {
+    std::string why = one_line(OIIO::geterror());
+    if (why.empty()) why = "unknown image format";
+    throw InputError(cat(path, ": cannot read image: ", why));
+  }
+  const cv::Size size(input->spec().width, input->spec().height);
+  input->close();
+  return size;
 }
 
 void write_image(const std::string& path, const cv::Mat& image, int jpeg_quality, int png_level) {

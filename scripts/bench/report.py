@@ -881,9 +881,10 @@ class Report:
     # ---- profiles -----------------------------------------------------------------------
     # What a library's share of the samples says, and what would make that part faster.
     LIB_ADVICE = [
-        ("ld-linux", "process start-up (dynamic symbol lookup for OpenCV/OpenVDB/TBB)",
-         "it is paid once per process, so run the stages in one process (`vispack-run`) or link "
-         "statically; it matters only for small inputs"),
+        ("ld-linux", "process start-up (dynamic symbol lookup: ~260 shared libraries, nearly all "
+         "pulled in by OpenImageIO; section \"Process start-up per executable\")",
+         "it is paid once per process, so run the stages in one process (`vispack-run`) or read "
+         "and write PNG/TIFF without OpenImageIO; it matters only for small inputs"),
         ("libpng", "PNG decoding/encoding of slices and intermediates",
          "raw or zstd-1 intermediates instead of PNG between stages"),
         ("libz", "zlib (PNG and gzip) compression",

@@ -192,6 +192,19 @@ TEST(SliceIo, RawByteLayoutIsWhatNlmFilesUse) {
   EXPECT_EQ(vp::read_slice(dir / "b.raw", big).at<std::uint16_t>(0, 0), 0x3412);
 }
 
+TEST(SliceIo, SizeFromTheHeaderAlone) {
+  TempDir dir;
+  const cv::Mat image = make_image(37, 23, CV_8UC3);
+  for (const std::string ext : {".png", ".tif"}) {
+    vp::write_image(dir / ("s" + ext), image);
+    EXPECT_EQ(vp::read_slice_size(dir / ("s" + ext)), cv::Size(37, 23)) << ext;
+  }
+  vp::RawLayout raw{37, 23, 3, true, 8, false, 0};
+  EXPECT_EQ(vp::read_slice_size(dir / "any.raw", raw), cv::Size(37, 23));
+  write_bytes(dir / "junk.png", "not an image");
+  expect_error<vispack::InputError>([&] { vp::read_slice_size(dir / "junk.png"); }, "junk.png");
+}
+
 TEST(SliceIo, Errors) {
   TempDir dir;
   write_bytes(dir / "empty.png", "");

@@ -9,21 +9,28 @@
 
 namespace vispack::pipeline {
 
-cv::Mat draw_ct_overlay(const cv::Mat& registered, const cv::Mat& ct_hu,
-                        const Similarity& ct_to_rgb, double hu_threshold, int max_edge) {
-  const double s = std::min(1.0, double(max_edge) / std::max(registered.cols, registered.rows));
+cv::Mat shrink_to_edge(const cv::Mat& image, int max_edge) {
+  const double s = std::min(1.0, double(max_edge) / std::max(image.cols, image.rows));
   cv::Mat out;
   if (s < 1.0) {
-    cv::resize(registered, out, cv::Size(), s, s, cv::INTER_AREA);
+    cv::resize(image, out, cv::Size(), s, s, cv::INTER_AREA);
   } else {
-    out = registered.clone();
+    out = image.clone();
   }
+  return out;
+}
+
+cv::Mat draw_ct_overlay(const cv::Mat& registered, const cv::Mat& ct_hu,
+                        const Similarity& ct_to_rgb, double hu_threshold, int max_edge,
+                        cv::Size grid) {
+  if (grid.empty()) grid = registered.size();
+  cv::Mat out = shrink_to_edge(registered, max_edge);
   if (ct_hu.empty()) return out;
   // Small grid → output grid → CT.
-  const double sx = double(out.cols) / registered.cols, sy = double(out.rows) / registered.rows;
+  const double sx = double(out.cols) / grid.width, sy = double(out.rows) / grid.height;
   const cv::Matx23d small_to_out{1.0 / sx, 0, 0.5 / sx - 0.5, 0, 1.0 / sy, 0.5 / sy - 0.5};
-  const cv::Matx23d out_to_ct = invert_affine(
-      similarity_matrix(ct_to_rgb, image_centre(ct_hu.size()), image_centre(registered.size())));
+  const cv::Matx23d out_to_ct =
+      invert_affine(similarity_matrix(ct_to_rgb, image_centre(ct_hu.size()), image_centre(grid)));
   cv::Mat ct32, ct_small;
   ct_hu.convertTo(ct32, CV_32F);
   cv::warpAffine(ct32, ct_small, cv::Mat(compose_affine(out_to_ct, small_to_out)), out.size(),

@@ -44,6 +44,12 @@ std::vector<SliceFile> list_slices(const SliceSource& source);
 // channel count, raw size mismatch, or larger than kMaxImageEdge / kMaxImageBytes.
 cv::Mat read_slice(const std::string& path, const std::optional<RawLayout>& raw = std::nullopt);
 
+// The width and height of a slice from its header alone (no pixels decoded): the raw layout's
+// size with `raw`, else the image file's header. Throws InputError naming the file when it
+// cannot be opened or its format is not recognised. read_slice validates the rest.
+cv::Size read_slice_size(const std::string& path,
+                         const std::optional<RawLayout>& raw = std::nullopt);
+
 // Writes an image as PNG, TIFF, JPEG or BMP (by the extension: .png, .tif/.tiff, .jpg/.jpeg, .bmp),
 // atomically (temporary file + rename: the path holds the old content or the complete new one).
 // `image`: CV_8U or CV_16U with 1, 3 or 4 channels in RGB(A) order (JPEG, BMP: 8-bit, 1 or 3
