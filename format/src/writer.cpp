@@ -18,6 +18,7 @@
 #include <unordered_set>
 
 #include "layout.h"
+#include "spill_store.h"
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
 #include "vispack/common/hash.h"
@@ -222,13 +223,20 @@ struct BrickSource {
   std::int64_t gx = 0, gy = 0, dx = 0, dy = 0;
 };
 
-// Makes brick `i` (index order within the slab: channel, by, bx) of `src` from the slab buffers
-// (per stored channel: the slab's slices): gathers and pads it, computes its stats and encodes it
-// (SPEC.md "Codecs"). The one encoder of the Writer and encode_level0_slab.
+// The voxels of one channel a brick is gathered from: planes of `rows` rows (rows
+// [y_first, y_first + rows) of the level, all dx voxels wide), one plane per slice of the slab.
+struct ChannelBlock {
+  const std::uint8_t* data = nullptr;
+  std::int64_t y_first = 0;
+  std::int64_t rows = 0;
+};
+
+// Makes brick `i` (index order within the slab: channel, by, bx) of `src` from `block`, the
+// brick's channel (its rows must cover the brick's): gathers and pads it, computes its stats and
+// encodes it (SPEC.md "Codecs"). The one encoder of the Writer and encode_level0_slab.
 void encode_brick(const WriterOptions& opt, const std::vector<ChannelSpec>& stored,
-                  const std::string& path, const BrickSource& source,
-                  const std::vector<std::vector<std::uint8_t>>& slabs, std::int64_t i,
-                  WorkerScratch& scratch, BrickResult& r) {
+                  const std::string& path, const BrickSource& source, const ChannelBlock& block,
+                  std::int64_t i, WorkerScratch& scratch, BrickResult& r) {
   const int L = source.level;
   const std::int64_t per_channel = source.gx * source.gy;
   const int c = int(i / per_channel);
@@ -246,7 +254,7 @@ void encode_brick(const WriterOptions& opt, const std::vector<ChannelSpec>& stor
   const std::size_t brick_bytes = plane_bytes * std::size_t(e);
   if (scratch.brick.size() < brick_bytes) scratch.brick.resize(brick_bytes);
   std::uint8_t* buf = scratch.brick.data();
-  const std::uint8_t* slab = slabs[std::size_t(c)].data();
+  const std::uint8_t* slab = block.data;
   for (std::int64_t z = 0; z < e; ++z) {
     std::uint8_t* plane = buf + std::size_t(z) * plane_bytes;
     if (z >= nzv) {
@@ -259,7 +267,8 @@ void encode_brick(const WriterOptions& opt, const std::vector<ChannelSpec>& stor
         std::memcpy(dst, plane + std::size_t(nyv - 1) * row_bytes, row_bytes);
         continue;
       }
-      const std::uint8_t* src = slab + ((std::size_t(z) * dy + (y0 + y)) * dx + x0) * bytes;
+      const std::uint8_t* src =
+          slab + ((std::size_t(z) * block.rows + (y0 + y - block.y_first)) * dx + x0) * bytes;
       std::memcpy(dst, src, std::size_t(nxv) * bytes);
       for (std::int64_t x = nxv; x < e; ++x) {
         std::memcpy(dst + std::size_t(x) * bytes, src + std::size_t(nxv - 1) * bytes, bytes);
@@ -342,7 +351,8 @@ std::int64_t level0_slab_count(const WriterOptions& options) {
 }
 
 std::vector<EncodedBrick> encode_level0_slab(const WriterOptions& options, std::int64_t bz,
-                                             const std::vector<const void*>& channel_slabs) {
+                                             const std::vector<const void*>& channel_slabs,
+                                             std::vector<std::vector<std::uint8_t>>* level1) {
   validate(options);
   const std::vector<ChannelSpec> stored = stored_channels_for(options);
   const std::int64_t e = options.brick_edge;
@@ -383,9 +393,29 @@ std::vector<EncodedBrick> encode_level0_slab(const WriterOptions& options, std::
   parallel_for(threads, threads, [&](std::int64_t t) {
     WorkerScratch scratch;
     for (std::int64_t i = t; i < items; i += threads)
-      encode_brick(options, stored, "encode_level0_slab", source, slabs, i, scratch,
+      encode_brick(options, stored, "encode_level0_slab", source,
+                   ChannelBlock{slabs[std::size_t(i / (gx * gy))].data(), 0, dy}, i, scratch,
                    results[std::size_t(i)]);
   });
+  if (level1) {
+    // The slab's level-1 slices, reduced as Writer::Impl::push reduces them (pairs of slices; the
+    // volume's last slice alone when dims[2] is odd). Slabs start at even slices (even edge).
+    level1->assign(stored.size(), {});
+    if (format::level_count_for(options.dims, int(e)) > 1) {
+      const std::int64_t hx = ceil_div(dx, 2), hy = ceil_div(dy, 2);
+      const int n1 = int(ceil_div(nzv, 2));
+      for (std::size_t c = 0; c < stored.size(); ++c) {
+        const std::size_t bytes = channel_type_bytes(stored[c].type);
+        auto& dst = (*level1)[c];
+        dst.resize(std::size_t(hx) * std::size_t(hy) * std::size_t(n1) * bytes);
+        for (int k = 0; k < n1; ++k)
+          downsample_slice(stored[c].type, slabs[c].data() + std::size_t(2 * k) * plane * bytes,
+                           std::min(2, nzv - 2 * k), dx, dy,
+                           dst.data() + std::size_t(k) * std::size_t(hx * hy) * bytes,
+                           resolve_threads(options.threads));
+      }
+    }
+  }
   std::vector<EncodedBrick> out(static_cast<std::size_t>(items));
   for (std::size_t i = 0; i < out.size(); ++i) {
     const IndexEntry& en = results[i].entry;
@@ -433,21 +463,39 @@ void decode_encoded_brick(const EncodedBrick& brick, ChannelType stored, int bri
   if (r != n) throw FormatError(cat(what, ": zstd payload decodes to ", r, " bytes, expected ", n));
 }
 
+std::vector<std::uint8_t> compress_bytes(const void* data, std::size_t size, int level) {
+  std::vector<std::uint8_t> out(ZSTD_compressBound(size));
+  const std::size_t n = ZSTD_compress(out.data(), out.size(), data, size, level);
+  if (ZSTD_isError(n)) throw Error(cat("zstd compression failed: ", ZSTD_getErrorName(n)));
+  out.resize(n);
+  return out;
+}
+
+void decompress_bytes(const std::uint8_t* src, std::size_t size, std::uint8_t* out,
+                      std::size_t out_size, const std::string& what) {
+  const std::size_t r = ZSTD_decompress(out, out_size, src, size);
+  if (ZSTD_isError(r))
+    throw FormatError(cat(what, ": zstd data does not decode: ", ZSTD_getErrorName(r)));
+  if (r != out_size)
+    throw FormatError(cat(what, ": zstd data decodes to ", r, " bytes, expected ", out_size));
+}
+
 int Writer::level_count_for(const std::array<std::int64_t, 3>& dims, int brick_edge) {
   return format::level_count_for(dims, brick_edge);
 }
 
 struct Writer::Impl {
-  // One slab of one level handed to the workers: its slices (moved out of the level), and the
-  // results of its bricks in index order. Fields other than `slab`, `results` and the constants
-  // are guarded by Impl::mutex.
+  // A run of consecutive bricks of one slab handed to the workers: bricks [first, first + count)
+  // of the slab's index order, gathered from `blocks` (per channel). Fields other than the
+  // constants and `results` are guarded by Impl::mutex; results[j] belongs to whoever makes brick
+  // j until finished[j] is set.
   struct Batch {
-    int level = 0;
-    std::int64_t bz = 0;
-    int nzv = 0;
-    std::int64_t items = 0;
-    std::vector<std::vector<std::uint8_t>> slab;  // per channel: nzv slices of the level
+    BrickSource source;
+    std::vector<ChannelBlock> blocks;
+    std::int64_t first = 0;
+    std::int64_t count = 0;
     std::vector<BrickResult> results;
+    std::vector<char> finished;
     std::int64_t next = 0;  // next brick to hand out
     std::int64_t done = 0;  // bricks finished
     std::exception_ptr error;
@@ -458,8 +506,12 @@ struct Writer::Impl {
     std::array<std::int64_t, 3> grid{};
     std::int64_t received = 0;
     std::uint64_t index_base = 0;
-    std::vector<std::vector<std::uint8_t>> slab;        // per channel: edge slices
-    std::vector<std::vector<std::uint8_t>> spare;       // slab buffers back from the workers
+    // Level 0: per channel, the slab of edge slices being filled (the only full-size buffer).
+    std::vector<std::vector<std::uint8_t>> slab;
+    // Levels >= 1: where channel c's slab lives in the spill store (edge planes), and the last
+    // two slices received (per channel, two planes), which the next level is reduced from.
+    std::vector<std::uint64_t> spill_offset;
+    std::vector<std::vector<std::uint8_t>> pair;
     std::vector<std::vector<std::uint8_t>> next_slice;  // per channel: one slice of level + 1
   };
 
@@ -470,27 +522,29 @@ struct Writer::Impl {
   int threads = 1;
   VolumeGeometry geometry;
   std::vector<Level> levels;
+  std::unique_ptr<detail::SpillStore> spill;  // the coarser levels' slabs
+  std::vector<std::uint8_t> band;             // one band of bricks of a coarser level
   std::vector<IndexEntry> entries;
   std::vector<std::vector<std::uint32_t>> entry_labels;
   std::vector<bool> filled;
   // Level-0 slabs encoded elsewhere (provide_level0_slab), by bz, until their slab is flushed.
   std::map<std::int64_t, std::vector<EncodedBrick>> provided;
+  bool level1_fed = false;  // append_level1_slice was used (level 0 comes only from provided)
   std::vector<std::uint8_t> zeros = std::vector<std::uint8_t>(kPayloadAlignment, 0);
   std::uint64_t pos = 0;
   std::int64_t slices = 0;
   bool finished = false;
 
-  // Persistent compression workers. Slabs are compressed while the calling thread gathers the
-  // next slab and builds the pyramid; their bricks are written in the order the slabs were
-  // flushed, so the file does not depend on scheduling.
+  // Persistent compression workers. A flush hands them a batch and the calling thread makes
+  // bricks too, writing each brick as soon as it and every brick before it are made, so the
+  // file does not depend on scheduling and few payloads are held at a time.
   std::mutex mutex;
-  std::condition_variable work_ready;            // a batch has bricks to hand out, or stop
-  std::condition_variable batch_done;            // a batch finished
-  std::deque<Batch*> pending;                    // batches with bricks not yet handed out
-  std::deque<std::unique_ptr<Batch>> in_flight;  // flushed, not yet written (file order)
+  std::condition_variable work_ready;  // a batch has bricks to hand out, or stop
+  std::condition_variable brick_done;  // a brick finished
+  Batch* pending = nullptr;            // the batch with bricks not yet handed out
   bool stop = false;
   std::vector<std::thread> workers;
-  std::unique_ptr<WorkerScratch> own_scratch;  // the calling thread's, when it helps
+  std::unique_ptr<WorkerScratch> own_scratch;  // the calling thread's
 
   Impl(std::string p, WriterOptions o) : path(std::move(p)), opt(std::move(o)), file(path) {
     threads = resolve_threads(opt.threads);
@@ -506,6 +560,7 @@ struct Writer::Impl {
     geometry = std::move(*g);
     const int n_levels = int(geometry.levels.size());
     const std::uint64_t base = geometry.index_count;
+    std::uint64_t spill_bytes = 0;
     for (int l = 0; l < n_levels; ++l) {
       const LevelInfo& li = geometry.levels[std::size_t(l)];
       const std::array<std::int64_t, 3>& d = li.dims;
@@ -514,16 +569,24 @@ struct Writer::Impl {
       lv.grid = li.bricks;
       lv.index_base = geometry.level_base[std::size_t(l)];
       const std::size_t plane = std::size_t(d[0]) * std::size_t(d[1]);
+      const std::size_t planes = std::size_t(std::min<std::int64_t>(e, d[2]));
       for (const auto& s : stored) {
-        lv.slab.emplace_back(plane * std::size_t(std::min<std::int64_t>(e, d[2])) *
-                             channel_type_bytes(s.type));
+        const std::size_t bytes = channel_type_bytes(s.type);
+        if (l == 0) {
+          lv.slab.emplace_back(plane * planes * bytes);
+        } else {
+          lv.spill_offset.push_back(spill_bytes);
+          spill_bytes += plane * planes * bytes;
+          if (l + 1 < n_levels) lv.pair.emplace_back(2 * plane * bytes);
+        }
         if (l + 1 < n_levels) {
           lv.next_slice.emplace_back(std::size_t(ceil_div(d[0], 2)) *
-                                     std::size_t(ceil_div(d[1], 2)) * channel_type_bytes(s.type));
+                                     std::size_t(ceil_div(d[1], 2)) * bytes);
         }
       }
       levels.push_back(std::move(lv));
     }
+    spill = std::make_unique<detail::SpillStore>(spill_bytes, opt.coarse_levels_memory_bytes, path);
     entries.resize(base);
     entry_labels.resize(base);
     filled.assign(base, false);
@@ -552,179 +615,198 @@ struct Writer::Impl {
     workers.clear();
   }
 
-  // Takes the next brick of the oldest pending batch and makes it; `lock` holds `mutex` on
-  // entry and on return, and `pending` is not empty.
+  // Takes the next brick of the pending batch and makes it; `lock` holds `mutex` on entry and on
+  // return, and `pending` is not null.
   void run_one(std::unique_lock<std::mutex>& lock, WorkerScratch& scratch) {
-    Batch* b = pending.front();
-    const std::int64_t i = b->next++;
-    if (b->next == b->items) pending.pop_front();
+    Batch* b = pending;
+    const std::int64_t j = b->next++;
+    if (b->next == b->count) pending = nullptr;
     lock.unlock();
     std::exception_ptr error;
     try {
-      make_brick(*b, i, scratch);
+      const std::int64_t i = b->first + j;
+      const std::int64_t per_channel = b->source.gx * b->source.gy;
+      encode_brick(opt, stored, path, b->source, b->blocks[std::size_t(i / per_channel)], i,
+                   scratch, b->results[std::size_t(j)]);
     } catch (...) {
       error = std::current_exception();
     }
     lock.lock();
     if (error && !b->error) b->error = error;
-    if (++b->done == b->items) batch_done.notify_all();
+    b->finished[std::size_t(j)] = 1;
+    ++b->done;
+    brick_done.notify_all();
   }
 
   void worker_loop() {
     WorkerScratch scratch;
     std::unique_lock<std::mutex> lock(mutex);
     for (;;) {
-      work_ready.wait(lock, [&] { return stop || !pending.empty(); });
+      work_ready.wait(lock, [&] { return stop || pending; });
       if (stop) return;
       run_one(lock, scratch);
     }
   }
 
-  void make_brick(Batch& b, std::int64_t i, WorkerScratch& scratch) {
-    const Level& lv = levels[b.level];
-    BrickSource src{b.level, b.bz, b.nzv, lv.grid[0], lv.grid[1], lv.dims[0], lv.dims[1]};
-    encode_brick(opt, stored, path, src, b.slab, i, scratch, b.results[std::size_t(i)]);
+  // Appends one brick's payload and records its index entry (`k`: its index slot).
+  void store(std::uint64_t k, IndexEntry en, const std::uint8_t* payload,
+             std::vector<std::uint32_t>&& labels) {
+    if (en.stored_size) {
+      en.offset = pos;
+      file.write(payload, en.stored_size);
+      const std::uint64_t pad = align_up(en.stored_size, kPayloadAlignment) - en.stored_size;
+      if (pad) file.write(zeros.data(), pad);
+      pos += en.stored_size + pad;
+    }
+    entries[k] = en;
+    entry_labels[k] = std::move(labels);
+    filled[k] = true;
   }
 
-  // Writes the oldest in-flight batch once its bricks are done (rethrowing a worker's error),
-  // and gives its slab buffers back to its level.
-  void write_front(std::unique_lock<std::mutex>& lock) {
-    Batch& b = *in_flight.front();
-    // Rather than idle, the calling thread makes bricks too while it waits (the pipeline's
-    // tail, or a level whose previous slab is still being compressed).
-    while (b.done != b.items) {
-      if (!pending.empty()) {
-        if (!own_scratch) own_scratch = std::make_unique<WorkerScratch>();
-        run_one(lock, *own_scratch);
-      } else {
-        batch_done.wait(lock);
-      }
-    }
-    std::unique_ptr<Batch> owned = std::move(in_flight.front());
-    in_flight.pop_front();
-    lock.unlock();
-    if (b.error) std::rethrow_exception(b.error);
-    Level& lv = levels[b.level];
-    const std::int64_t gx = lv.grid[0], gy = lv.grid[1];
-    const std::int64_t per_channel = gx * gy;
-    const std::uint64_t grid_count = std::uint64_t(gx * gy * lv.grid[2]);
-    for (std::int64_t i = 0; i < b.items; ++i) {
-      BrickResult& r = b.results[std::size_t(i)];
-      if (r.payload.size) {
-        r.entry.offset = pos;
-        file.write(r.payload.data.get(), r.payload.size);
-        std::uint64_t pad = align_up(r.payload.size, kPayloadAlignment) - r.payload.size;
-        if (pad) file.write(zeros.data(), pad);
-        pos += r.payload.size + pad;
-        r.payload.clear();
-      }
-      int c = int(i / per_channel);
-      std::uint64_t k = lv.index_base + std::uint64_t(c) * grid_count +
-                        std::uint64_t(b.bz * gx * gy) + std::uint64_t(i % per_channel);
-      entries[k] = r.entry;
-      entry_labels[k] = std::move(r.labels);
-      filled[k] = true;
-    }
-    lv.spare = std::move(b.slab);
-    lock.lock();
+  // Index slot of brick i (slab index order) of slab bz of level L.
+  std::uint64_t slot(int L, std::int64_t bz, std::int64_t i) const {
+    const Level& lv = levels[std::size_t(L)];
+    const std::int64_t per_channel = lv.grid[0] * lv.grid[1];
+    const std::uint64_t grid_count = std::uint64_t(per_channel * lv.grid[2]);
+    return lv.index_base + std::uint64_t(i / per_channel) * grid_count +
+           std::uint64_t(bz * per_channel) + std::uint64_t(i % per_channel);
   }
 
-  // Hands slab `bz` of level L (its first nzv slices valid) to the workers. At most two slabs
-  // of a level exist at a time: the one being filled and the one being compressed.
+  // Makes bricks [first, first + count) of `source` from `blocks` with every thread, writing each
+  // in index order as soon as it is made (its payload freed at once).
+  void encode_and_write(const BrickSource& source, std::vector<ChannelBlock> blocks,
+                        std::int64_t first, std::int64_t count) {
+    Batch b;
+    b.source = source;
+    b.blocks = std::move(blocks);
+    b.first = first;
+    b.count = count;
+    b.results.resize(std::size_t(count));
+    b.finished.assign(std::size_t(count), 0);
+    std::unique_lock<std::mutex> lock(mutex);
+    pending = &b;
+    work_ready.notify_all();
+    if (!own_scratch) own_scratch = std::make_unique<WorkerScratch>();
+    for (std::int64_t j = 0; j < count; ++j) {
+      while (!b.finished[std::size_t(j)] && !b.error) {
+        if (pending == &b) {
+          run_one(lock, *own_scratch);
+        } else {
+          brick_done.wait(lock);
+        }
+      }
+      if (b.error) {
+        // Hand out nothing more; wait for the bricks being made, then report.
+        if (pending == &b) pending = nullptr;
+        brick_done.wait(lock, [&] { return b.done == b.next; });
+        std::rethrow_exception(b.error);
+      }
+      lock.unlock();
+      BrickResult& r = b.results[std::size_t(j)];
+      store(slot(source.level, source.bz, first + j), r.entry, r.payload.data.get(),
+            std::move(r.labels));
+      r.payload.clear();
+      lock.lock();
+    }
+  }
+
+  // Encodes and writes slab `bz` of level L (its first nzv slices valid).
   void flush(int L, std::int64_t bz, int nzv) {
-    Level& lv = levels[L];
-    {
-      std::unique_lock<std::mutex> lock(mutex);
-      auto has_level = [&] {
-        for (const auto& b : in_flight)
-          if (b->level == L) return true;
-        return false;
-      };
-      while (has_level())
-        write_front(lock);
-    }
-    auto b = std::make_unique<Batch>();
-    b->level = L;
-    b->bz = bz;
-    b->nzv = nzv;
-    b->items = lv.grid[0] * lv.grid[1] * std::int64_t(stored.size());
-    b->results.resize(std::size_t(b->items));
-    auto given = L == 0 ? provided.find(bz) : provided.end();
-    if (given != provided.end()) {
-      // Encoded elsewhere (a shard of a sharded pack): stored as handed over, not re-encoded.
-      const std::int64_t per_channel = lv.grid[0] * lv.grid[1];
-      for (std::int64_t i = 0; i < b->items; ++i) {
-        EncodedBrick& eb = given->second[std::size_t(i)];
-        BrickResult& r = b->results[std::size_t(i)];
-        IndexEntry& en = r.entry;
-        en.bx = std::uint32_t((i % per_channel) % lv.grid[0]);
-        en.by = std::uint32_t((i % per_channel) / lv.grid[0]);
-        en.bz = std::uint32_t(bz);
-        en.level = 0;
-        en.channel = std::uint8_t(i / per_channel);
-        en.codec = std::uint8_t(eb.codec);
-        std::memcpy(en.min, eb.min.data(), 8);
-        std::memcpy(en.max, eb.max.data(), 8);
-        en.checksum = eb.checksum;
-        en.stored_size = eb.payload.size();
-        if (!eb.payload.empty()) r.payload.assign(eb.payload.data(), eb.payload.size());
-        r.labels = std::move(eb.labels);
+    Level& lv = levels[std::size_t(L)];
+    const std::int64_t gx = lv.grid[0], gy = lv.grid[1];
+    const std::int64_t dx = lv.dims[0], dy = lv.dims[1];
+    const std::int64_t per_channel = gx * gy;
+    const std::int64_t items = per_channel * std::int64_t(stored.size());
+    const BrickSource source{L, bz, nzv, gx, gy, dx, dy};
+    if (L == 0) {
+      auto given = provided.find(bz);
+      if (given != provided.end()) {
+        // Encoded elsewhere (a shard of a sharded pack): stored as handed over, not re-encoded.
+        for (std::int64_t i = 0; i < items; ++i) {
+          EncodedBrick& eb = given->second[std::size_t(i)];
+          IndexEntry en{};
+          en.bx = std::uint32_t((i % per_channel) % gx);
+          en.by = std::uint32_t((i % per_channel) / gx);
+          en.bz = std::uint32_t(bz);
+          en.level = 0;
+          en.channel = std::uint8_t(i / per_channel);
+          en.codec = std::uint8_t(eb.codec);
+          std::memcpy(en.min, eb.min.data(), 8);
+          std::memcpy(en.max, eb.max.data(), 8);
+          en.checksum = eb.checksum;
+          en.stored_size = eb.payload.size();
+          store(slot(0, bz, i), en, eb.payload.data(), std::move(eb.labels));
+          std::vector<std::uint8_t>().swap(eb.payload);
+        }
+        provided.erase(given);
+        return;
       }
-      provided.erase(given);
-      b->done = b->items;
-      b->slab = std::move(lv.slab);
-      if (lv.spare.empty()) {
-        for (const auto& s : b->slab)
-          lv.spare.emplace_back(s.size());
+      if (level1_fed) {
+        throw std::invalid_argument(cat(path, ": level-0 slab ", bz,
+                                        " was not provided (provide_level0_slab) before its "
+                                        "level-1 slices were appended"));
       }
-      lv.slab = std::move(lv.spare);
-      lv.spare.clear();
-      std::lock_guard<std::mutex> lock(mutex);
-      in_flight.push_back(std::move(b));
+      std::vector<ChannelBlock> blocks;
+      for (const auto& s : lv.slab)
+        blocks.push_back({s.data(), 0, dy});
+      encode_and_write(source, std::move(blocks), 0, items);
       return;
     }
-    b->slab = std::move(lv.slab);
-    if (lv.spare.empty()) {
-      for (const auto& s : b->slab)
-        lv.spare.emplace_back(s.size());
+    // A coarser level: its slab is in the spill store; one band of bricks (one brick row along
+    // y of one channel) is read back at a time.
+    for (std::size_t c = 0; c < stored.size(); ++c) {
+      const std::size_t bytes = channel_type_bytes(stored[c].type);
+      const std::size_t plane = std::size_t(dx) * std::size_t(dy) * bytes;
+      for (std::int64_t by = 0; by < gy; ++by) {
+        const std::int64_t y0 = by * opt.brick_edge;
+        const std::int64_t rows = std::min<std::int64_t>(opt.brick_edge, dy - y0);
+        const std::size_t run = std::size_t(rows) * std::size_t(dx) * bytes;
+        if (band.size() < run * std::size_t(nzv)) band.resize(run * std::size_t(nzv));
+        for (int z = 0; z < nzv; ++z) {
+          spill->read(lv.spill_offset[c] + std::uint64_t(z) * plane +
+                          std::uint64_t(y0) * std::uint64_t(dx) * bytes,
+                      band.data() + std::size_t(z) * run, run);
+        }
+        std::vector<ChannelBlock> blocks(stored.size());
+        blocks[c] = {band.data(), y0, rows};
+        encode_and_write(source, std::move(blocks), std::int64_t(c) * per_channel + by * gx, gx);
+      }
     }
-    lv.slab = std::move(lv.spare);
-    lv.spare.clear();
-    std::unique_lock<std::mutex> lock(mutex);
-    pending.push_back(b.get());
-    in_flight.push_back(std::move(b));
-    lock.unlock();
-    work_ready.notify_all();
   }
 
-  // Writes every in-flight batch, in order.
-  void drain() {
-    std::unique_lock<std::mutex> lock(mutex);
-    while (!in_flight.empty())
-      write_front(lock);
-  }
-
-  // Slice z of level L: `slices_in[c]` may already point into the slab (then it is not copied).
+  // Slice z of level L (for level 0, `slices_in[c]` may already point into the slab: then it is
+  // not copied). Reduces the next level's slice from every pair, and writes a slab once full:
+  // the coarser levels' slabs that fill with it first (coarsest first), then this one.
   void push(int L, const std::vector<const std::uint8_t*>& slices_in) {
-    Level& lv = levels[L];
+    Level& lv = levels[std::size_t(L)];
     const std::int64_t e = opt.brick_edge;
     const std::int64_t z = lv.received++;
     const std::int64_t zs = z % e;
     const std::size_t plane = std::size_t(lv.dims[0]) * std::size_t(lv.dims[1]);
+    const bool has_next = L + 1 < int(levels.size());
     for (std::size_t c = 0; c < stored.size(); ++c) {
       const std::size_t bytes = channel_type_bytes(stored[c].type);
-      std::uint8_t* dst = lv.slab[c].data() + std::size_t(zs) * plane * bytes;
-      if (slices_in[c] != dst) std::memcpy(dst, slices_in[c], plane * bytes);
+      if (L == 0) {
+        std::uint8_t* dst = lv.slab[c].data() + std::size_t(zs) * plane * bytes;
+        if (slices_in[c] != dst) std::memcpy(dst, slices_in[c], plane * bytes);
+      } else {
+        spill->write(lv.spill_offset[c] + std::uint64_t(zs) * plane * bytes, slices_in[c],
+                     plane * bytes);
+        if (has_next)
+          std::memcpy(lv.pair[c].data() + std::size_t(z % 2) * plane * bytes, slices_in[c],
+                      plane * bytes);
+      }
     }
     const bool last = z == lv.dims[2] - 1;
-    if (L + 1 < int(levels.size()) && (z % 2 == 1 || last)) {
+    if (has_next && (z % 2 == 1 || last)) {
       const std::int64_t z0 = zs & ~std::int64_t(1);
       std::vector<const std::uint8_t*> next(stored.size());
       for (std::size_t c = 0; c < stored.size(); ++c) {
         const std::size_t bytes = channel_type_bytes(stored[c].type);
-        downsample_slice(stored[c].type, lv.slab[c].data() + std::size_t(z0) * plane * bytes,
-                         z % 2 == 1 ? 2 : 1, lv.dims[0], lv.dims[1], lv.next_slice[c].data(),
-                         threads);
+        const std::uint8_t* src =
+            L == 0 ? lv.slab[c].data() + std::size_t(z0) * plane * bytes : lv.pair[c].data();
+        downsample_slice(stored[c].type, src, z % 2 == 1 ? 2 : 1, lv.dims[0], lv.dims[1],
+                         lv.next_slice[c].data(), threads);
         next[c] = lv.next_slice[c].data();
       }
       push(L + 1, next);
@@ -740,8 +822,22 @@ struct Writer::Impl {
     return lv.slab[c].data() + std::size_t(zs) * plane * channel_type_bytes(stored[c].type);
   }
 
+  // Level-1 slice z1 given directly (append_level1_slice): level 0 advances by the (one or two)
+  // slices it was reduced from, and the level-0 slab they complete is written from its provided
+  // bricks after the coarser levels, in the order append_slice would have written them.
+  void push_level1(const std::vector<const std::uint8_t*>& slices_in) {
+    Level& l0 = levels[0];
+    const std::int64_t e = opt.brick_edge;
+    const std::int64_t z0 = l0.received;
+    const std::int64_t n0 = std::min<std::int64_t>(2, l0.dims[2] - z0);
+    push(1, slices_in);
+    l0.received += n0;
+    slices += n0;
+    const std::int64_t z = l0.received - 1;
+    if (z % e == e - 1 || z == l0.dims[2] - 1) flush(0, z / e, int(z % e + 1));
+  }
+
   void finish() {
-    drain();
     stop_workers();
     const std::uint64_t payload_end = pos;
     std::vector<std::uint32_t> label_ids;
@@ -836,6 +932,8 @@ void Writer::append_slice(const std::vector<const void*>& channel_slices) {
     throw std::invalid_argument(
         cat(m.path, ": append_slice: already got all ", m.opt.dims[2], " slices"));
   }
+  if (m.level1_fed)
+    throw std::invalid_argument(cat(m.path, ": append_slice after append_level1_slice"));
   const std::size_t plane = std::size_t(m.opt.dims[0]) * std::size_t(m.opt.dims[1]);
   std::vector<const std::uint8_t*> in(m.stored.size());
   for (std::size_t c = 0; c < m.stored.size(); ++c) {
@@ -855,6 +953,40 @@ void Writer::append_slice(const std::vector<const void*>& channel_slices) {
   }
   m.push(0, in);
   ++m.slices;
+}
+
+void Writer::append_level1_slice(const std::vector<const void*>& channel_slices) {
+  Impl& m = *impl_;
+  if (m.finished) throw std::invalid_argument(cat(m.path, ": append_level1_slice after finish()"));
+  if (m.levels.size() < 2) {
+    throw std::invalid_argument(
+        cat(m.path, ": append_level1_slice: the volume has no level 1 (it fits one brick)"));
+  }
+  if (m.slices > 0 && !m.level1_fed)
+    throw std::invalid_argument(cat(m.path, ": append_level1_slice after append_slice"));
+  if (channel_slices.size() != m.stored.size()) {
+    throw std::invalid_argument(cat(m.path, ": append_level1_slice got ", channel_slices.size(),
+                                    " channel pointers, expected ", m.stored.size()));
+  }
+  if (m.slices >= m.opt.dims[2]) {
+    throw std::invalid_argument(
+        cat(m.path, ": append_level1_slice: already got all ", m.opt.dims[2], " slices"));
+  }
+  const std::int64_t bz = m.slices / m.opt.brick_edge;
+  if (!m.provided.count(bz)) {
+    throw std::invalid_argument(cat(m.path, ": append_level1_slice: level-0 slab ", bz,
+                                    " must be provided (provide_level0_slab) first"));
+  }
+  std::vector<const std::uint8_t*> in(m.stored.size());
+  for (std::size_t c = 0; c < m.stored.size(); ++c) {
+    if (!channel_slices[c]) {
+      throw std::invalid_argument(cat(m.path, ": append_level1_slice: null pointer for channel \"",
+                                      m.stored[c].name, "\""));
+    }
+    in[c] = static_cast<const std::uint8_t*>(channel_slices[c]);
+  }
+  m.level1_fed = true;
+  m.push_level1(in);
 }
 
 void Writer::provide_level0_slab(std::int64_t bz, std::vector<EncodedBrick> bricks) {
@@ -881,6 +1013,11 @@ void Writer::provide_level0_slab(std::int64_t bz, std::vector<EncodedBrick> bric
 void Writer::finish() {
   Impl& m = *impl_;
   if (m.finished) throw std::invalid_argument(cat(m.path, ": finish() called twice"));
+  if (m.slices == 0 && m.levels.size() == 1 && m.provided.count(0)) {
+    // A single-level volume given as its one encoded slab (no level 1 to append).
+    m.flush(0, 0, int(m.opt.dims[2]));
+    m.slices = m.opt.dims[2];
+  }
   if (m.slices != m.opt.dims[2]) {
     throw std::invalid_argument(
         cat(m.path, ": finish() after ", m.slices, " of ", m.opt.dims[2], " slices"));

@@ -360,6 +360,16 @@ const std::vector<std::string> kPackSections = {"pack", "spacing_mm", "name", "r
 
 constexpr char kSlabMagic[8] = {'\x89', 'V', 'P', 'S', '\r', '\n', '\x1a', '\n'};
 constexpr std::size_t kSlabRecordSize = 48;
+// 2: the slab's level-1 slices follow its bricks (the merge never decodes level 0).
+constexpr int kSlabVersion = 2;
+constexpr int kSlabLevel1Zstd = 1;  // zstd level of the level-1 slices
+
+// What a slab file holds: the slab's level-0 bricks (index order) and, per stored channel, its
+// level-1 slices (format::encode_level0_slab; empty for a single-level volume).
+struct SlabContent {
+  std::vector<format::EncodedBrick> bricks;
+  std::vector<std::vector<std::uint8_t>> level1;
+};
 
 // The stack slices [first, last) of level-0 slab bz.
 std::pair<int, int> slab_slices(const PackPlan& plan, std::int64_t bz) {
@@ -398,7 +408,7 @@ std::string slab_header_json(const PackPlan& plan, const std::vector<format::Cha
     channels.push_back({{"name", c.name}, {"type", format::channel_type_name(c.type)}});
   auto [first, last] = slab_slices(plan, bz);
   json h = {{"format", "vispack-slab"},
-            {"version", 1},
+            {"version", kSlabVersion},
             {"bz", bz},
             {"slices", {first, last}},
             {"dims", plan.wo.dims},
@@ -416,8 +426,8 @@ void put(std::string& out, T value) {
   out.append(reinterpret_cast<const char*>(&value), sizeof value);
 }
 
-void write_slab_file(const std::string& path, const std::string& header,
-                     const std::vector<format::EncodedBrick>& bricks) {
+void write_slab_file(const std::string& path, const std::string& header, const SlabContent& slab) {
+  const std::vector<format::EncodedBrick>& bricks = slab.bricks;
   std::string out(kSlabMagic, 8);
   put(out, std::uint32_t(header.size()));
   out += header;
@@ -433,16 +443,22 @@ void write_slab_file(const std::string& path, const std::string& header,
     out.append(reinterpret_cast<const char*>(b.labels.data()), b.labels.size() * 4);
     out.append(reinterpret_cast<const char*>(b.payload.data()), b.payload.size());
   }
+  for (const auto& l : slab.level1) {
+    const std::vector<std::uint8_t> z = format::compress_bytes(l.data(), l.size(), kSlabLevel1Zstd);
+    put(out, std::uint64_t(l.size()));
+    put(out, std::uint64_t(z.size()));
+    out.append(reinterpret_cast<const char*>(z.data()), z.size());
+  }
   put(out, xxh64(out.data(), out.size()));
   write_file_atomic(path, out);
 }
 
 // Reads and checks a slab file against what the merge expects (`header` = the JSON it would
-// write, input fingerprint aside). Throws FormatError / InputError naming the file.
-std::vector<format::EncodedBrick> read_slab_file(const std::string& path,
-                                                 const std::string& expected_header,
-                                                 const std::string& expected_input,
-                                                 std::pair<int, int> slices) {
+// write, input fingerprint aside; `level1_bytes`: the size of each channel's level-1 slices).
+// Throws FormatError / InputError naming the file.
+SlabContent read_slab_file(const std::string& path, const std::string& expected_header,
+                           const std::string& expected_input, std::pair<int, int> slices,
+                           const std::vector<std::size_t>& level1_bytes) {
   const std::string data = read_file(path);
   auto bad = [&](const std::string& what) { return FormatError(cat(path, ": ", what)); };
   if (data.size() < 8 + 4 + 8 || std::memcmp(data.data(), kSlabMagic, 8) != 0)
@@ -465,6 +481,13 @@ std::vector<format::EncodedBrick> read_slab_file(const std::string& path,
   json header = json::parse(data.substr(pos, header_size), nullptr, false);
   pos += header_size;
   if (!header.is_object() || !header.contains("input")) throw bad("bad header");
+  if (header.value("version", 0) != kSlabVersion) {
+    throw InputError(cat(path, ": slab file version ", header.value("version", 0),
+                         " (an older vispack-pack, without level-1 slices); this merge reads "
+                         "version ",
+                         kSlabVersion, ": rerun vispack-pack --slices ", slices.first, ":",
+                         slices.second));
+  }
   const std::string input = header["input"].is_string() ? header["input"].get<std::string>() : "";
   json expected = json::parse(expected_header);
   header["input"] = expected["input"];
@@ -480,7 +503,9 @@ std::vector<format::EncodedBrick> read_slab_file(const std::string& path,
                          slices.first, ":", slices.second));
   }
   const std::size_t count = expected["bricks"].get<std::size_t>();
-  std::vector<format::EncodedBrick> bricks(count);
+  SlabContent slab;
+  std::vector<format::EncodedBrick>& bricks = slab.bricks;
+  bricks.resize(count);
   for (auto& b : bricks) {
     std::uint8_t rec[kSlabRecordSize];
     take(rec, kSlabRecordSize);
@@ -500,8 +525,23 @@ std::vector<format::EncodedBrick> read_slab_file(const std::string& path,
     b.payload.assign(data.begin() + std::ptrdiff_t(pos), data.begin() + std::ptrdiff_t(pos + size));
     pos += size;
   }
-  if (pos != end) throw bad("trailing bytes after the last brick");
-  return bricks;
+  for (std::size_t c = 0; c < level1_bytes.size(); ++c) {
+    std::uint64_t raw = 0, size = 0;
+    take(&raw, 8);
+    take(&size, 8);
+    if (raw != level1_bytes[c])
+      throw bad(
+          cat("level-1 slices of channel ", c, ": ", raw, " bytes, expected ", level1_bytes[c]));
+    if (size > end - pos) throw bad("truncated level-1 slices");
+    std::vector<std::uint8_t> l(level1_bytes[c]);
+    format::decompress_bytes(reinterpret_cast<const std::uint8_t*>(data.data() + pos),
+                             std::size_t(size), l.data(), l.size(),
+                             cat(path, ": level-1 slices of channel ", c));
+    pos += size;
+    slab.level1.push_back(std::move(l));
+  }
+  if (pos != end) throw bad("trailing bytes after the level-1 slices");
+  return slab;
 }
 
 // The bricks of channel c in a slab's brick list (channel, then by, then bx).
@@ -550,8 +590,9 @@ StageResult run_pack_shard(const Config& config, const StageOptions& options, co
     std::uint64_t bytes = 0;
     for (int k = first; k < last; ++k)
       bytes += read_pack_slice(config, plan, k, buffers, k - first, ids_seen);
-    auto bricks = format::encode_level0_slab(plan.wo, bz, buffers.slice(plan, 0));
-    write_slab_file(path, slab_header_json(plan, stored, bz, bricks.size(), input), bricks);
+    SlabContent slab;
+    slab.bricks = format::encode_level0_slab(plan.wo, bz, buffers.slice(plan, 0), &slab.level1);
+    write_slab_file(path, slab_header_json(plan, stored, bz, slab.bricks.size(), input), slab);
     if (test_pause_enabled()) test_pause_point(cat("slab:pack:", bz));  // test_pause.h
     run.done(bz, input, {path}, bytes);
   }
@@ -625,68 +666,37 @@ StageResult run_pack_merge(const Config& config, const StageOptions& options) {
   const std::vector<format::ChannelSpec> stored = writer.stored_channels();
   const std::int64_t e = plan.wo.brick_edge;
   const std::int64_t nx = plan.out_size.width, ny = plan.out_size.height;
-  const std::size_t plane = std::size_t(nx) * std::size_t(ny);
   const std::int64_t gx = (nx + e - 1) / e, gy = (ny + e - 1) / e;
+  const bool has_level1 = format::Writer::level_count_for(plan.wo.dims, int(e)) > 1;
+  const std::size_t plane1 = std::size_t((nx + 1) / 2) * std::size_t((ny + 1) / 2);
   std::set<std::uint16_t> ids_seen;
   std::uint64_t bytes = 0;
-  const int threads = resolve_threads(plan.wo.threads);
-  SliceBuffers buffers(plan, int(std::min<std::int64_t>(e, plan.n)));
   for (std::int64_t bz = 0; bz < slabs; ++bz) {
     const std::string path = slab_path(config, bz);
     const auto slices = slab_slices(plan, bz);
     const std::string input = slab_input(config, plan, bz);
-    std::vector<format::EncodedBrick> bricks = read_slab_file(
-        path, slab_header_json(plan, stored, bz, std::size_t(gx * gy) * stored.size(), input),
-        input, slices);
-    bytes += fs::file_size(path);
     const int nzv = slices.second - slices.first;
-    // Level 0 of the slab back from its bricks (lossless), in append_slice's convention.
-    // (One buffer for every slab, allocated once: the last slab may use fewer slices.)
-    for (std::size_t c = 0; c < stored.size(); ++c) {
-      const std::size_t vb = format::channel_type_bytes(stored[c].type);
-      const bool widen = stored[c].type == format::ChannelType::kUint8;  // labels as uint16
-      const std::size_t ob = widen ? 2 : vb;
-      std::uint8_t* dst = c == 0 ? buffers.rgba.data()
-                                 : reinterpret_cast<std::uint8_t*>(
-                                       plan.has_ct && c == 1 ? static_cast<void*>(buffers.ct.data())
-                                                             : buffers.labels.data());
-      for (const auto& b : bricks_of_channel(bricks, c, gx * gy))
+    const std::size_t n1 = has_level1 ? std::size_t(nzv + 1) / 2 : 0;
+    std::vector<std::size_t> level1_bytes;
+    if (has_level1)
+      for (const auto& c : stored)
+        level1_bytes.push_back(plane1 * n1 * format::channel_type_bytes(c.type));
+    SlabContent slab = read_slab_file(
+        path, slab_header_json(plan, stored, bz, std::size_t(gx * gy) * stored.size(), input),
+        input, slices, level1_bytes);
+    bytes += fs::file_size(path);
+    for (std::size_t c = 0; c < stored.size(); ++c)
+      for (const auto& b : bricks_of_channel(slab.bricks, c, gx * gy))
         for (std::uint32_t id : b.labels)
           if (id) ids_seen.insert(std::uint16_t(id));
-      // Bricks decode in parallel (each fills its own part of the slices); a worker per thread
-      // with its own brick buffer.
-      const std::int64_t count = gx * gy;
-      const int workers = int(std::min<std::int64_t>(threads, count));
-      parallel_for(workers, workers, [&](std::int64_t w) {
-        std::vector<std::uint8_t> brick(std::size_t(e * e * e) * vb);
-        for (std::int64_t i = w; i < count; i += workers) {
-          const std::int64_t bx = i % gx, by = i / gx;
-          const auto& b = bricks[std::size_t(std::int64_t(c) * count + i)];
-          format::decode_encoded_brick(
-              b, stored[c].type, int(e), brick.data(),
-              cat(path, ": brick (", bx, ",", by, ") of channel ", stored[c].name));
-          const std::int64_t nxv = std::min(e, nx - bx * e), nyv = std::min(e, ny - by * e);
-          for (int z = 0; z < nzv; ++z)
-            for (std::int64_t y = 0; y < nyv; ++y) {
-              const std::uint8_t* src = brick.data() + std::size_t((z * e + y) * e) * vb;
-              std::uint8_t* out =
-                  dst + (std::size_t(z) * plane + std::size_t(by * e + y) * std::size_t(nx) +
-                         std::size_t(bx * e)) *
-                            ob;
-              if (widen) {
-                auto* o16 = reinterpret_cast<std::uint16_t*>(out);
-                for (std::int64_t x = 0; x < nxv; ++x)
-                  o16[x] = src[x];
-              } else {
-                std::memcpy(out, src, std::size_t(nxv) * vb);
-              }
-            }
-        }
-      });
+    // Level 0 as stored by the shard (never decoded); the coarser levels from its level-1 slices.
+    writer.provide_level0_slab(bz, std::move(slab.bricks));
+    for (std::size_t k = 0; k < n1; ++k) {
+      std::vector<const void*> slice;
+      for (std::size_t c = 0; c < stored.size(); ++c)
+        slice.push_back(slab.level1[c].data() + k * (level1_bytes[c] / n1));
+      writer.append_level1_slice(slice);
     }
-    writer.provide_level0_slab(bz, std::move(bricks));
-    for (int z = 0; z < nzv; ++z)
-      writer.append_slice(buffers.slice(plan, z));
     run.add_bytes(0);
   }
   writer.finish();

@@ -8,21 +8,36 @@
 #   3. the merge against a whole pack on the medium phantom (512x384x160, brick_edge 32: 5 slabs):
 #      vispack-pack (whole) vs vispack-pack --slices per slab + vispack-pack --merge, one thread.
 # Usage: tests/cluster/cluster_bench.sh BIN_DIR [SLICES]   (default 16 slices; prints results)
+#        tests/cluster/cluster_bench.sh --merge-only BIN_DIR [BASELINE_BIN_DIR]
+#          part 3 alone (no SLURM, no root); with a baseline, its runs alternate with BIN_DIR's
+#          (A B A B), each printing its merge / whole ratio.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
+merge_only=0
+if [[ "${1:-}" == "--merge-only" ]]; then
+  merge_only=1
+  shift
+fi
 bin=$(cd "${1:?usage: cluster_bench.sh BIN_DIR [SLICES]}" && pwd)
 slices=${2:-16}
-[[ $(id -u) -eq 0 ]] || { echo "cluster_bench: needs root (it starts SLURM daemons)"; exit 77; }
+bins=("$bin")
+if ((merge_only)) && [[ -n "${2:-}" ]]; then bins+=("$(cd "$2" && pwd)"); fi
 tmp=$(mktemp -d "${TMPDIR:-/tmp}/vispack-cluster-bench-XXXXXX")
-# shellcheck source=one_node_slurm.sh
-source "$root/tests/cluster/one_node_slurm.sh"
-trap 'stop_one_node_slurm; rm -rf "$tmp"' EXIT
+if ((merge_only)); then
+  trap 'rm -rf "$tmp"' EXIT
+else
+  [[ $(id -u) -eq 0 ]] || { echo "cluster_bench: needs root (it starts SLURM daemons)"; exit 77; }
+  # shellcheck source=one_node_slurm.sh
+  source "$root/tests/cluster/one_node_slurm.sh"
+  trap 'stop_one_node_slurm; rm -rf "$tmp"' EXIT
+fi
 now() { date +%s.%N; }
 elapsed() { awk -v a="$1" -v b="$(now)" 'BEGIN { printf "%.2f", b - a }'; }
 seconds_of() { sed -n 's/.*"seconds": *\([0-9.e+-]*\).*/\1/p' "$1" | head -n1; }
 
 echo "machine: $(nproc) cores, $(awk '/MemTotal/ { printf "%.1f GiB", $2 / 1048576 }' /proc/meminfo), load average at start: $(cut -d' ' -f1-3 /proc/loadavg)"
 echo "commit: $(git -C "$root" rev-parse --short HEAD)$(git -C "$root" diff --quiet HEAD -- . 2>/dev/null || echo ' (dirty tree)')"
+if ((!merge_only)); then
 start_one_node_slurm "$tmp/cluster"
 
 # 1. Per-job overhead.
@@ -71,6 +86,7 @@ for w in 1 2; do
 done
 echo "vhp-$slices: speed-up 1 -> 2 workers: $(awk -v a="$wall_1" -v b="$wall_2" 'BEGIN { printf "%.2f", a / b }')x (whole chain, overhead included)"
 stop_one_node_slurm
+fi
 
 # 3. Merge against a whole pack (no SLURM needed).
 "$bin/vispack-phantom" --out "$tmp/med" --preset medium --seed 1 --quiet >/dev/null
@@ -79,6 +95,7 @@ sed -i 's/"brick_edge": *[0-9]*/"brick_edge": 32/' "$tmp/med/config.json"
 n=$("$bin/vispack-run" "$tmp/med/config.json" --plan | sed -n 's/^slices //p')
 work=$(sed -n 's/.*"work_dir": *"\([^"]*\)".*/\1/p' "$tmp/med/config.json")
 for rep in 1 2 3; do
+for bin in "${bins[@]}"; do
   rm -rf "$tmp/med/$work/pack" "$tmp/med/$work/pack-slabs" "$tmp/med/out"
   t=$(now)
   "$bin/vispack-pack" --config "$tmp/med/config.json" --threads 1 --quiet
@@ -94,5 +111,6 @@ for rep in 1 2 3; do
   "$bin/vispack-pack" --config "$tmp/med/config.json" --merge --threads 1 --quiet
   merge=$(elapsed "$t")
   cmp -s "$tmp/whole.vpk" "$tmp/med/out/volume.vpk" || { echo "merge differs"; exit 1; }
-  echo "medium (512x384x$n, brick 32): whole pack $whole s; $(((n + 31) / 32)) slab shards $shards s; merge $merge s = $(awk -v m="$merge" -v w="$whole" 'BEGIN { printf "%.0f", 100 * m / w }') % of the whole pack (byte-identical)"
+  echo "$(basename "$(dirname "$bin")")/$(basename "$bin"): medium (512x384x$n, brick 32): whole pack $whole s; $(((n + 31) / 32)) slab shards $shards s; merge $merge s = $(awk -v m="$merge" -v w="$whole" 'BEGIN { printf "%.0f", 100 * m / w }') % of the whole pack (byte-identical)"
+done
 done

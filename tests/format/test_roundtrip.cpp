@@ -256,6 +256,65 @@ TEST(Determinism, SameInputSameBytesWhateverThreads) {
   EXPECT_EQ(ba.size() % 1, 0u);
 }
 
+// The coarser levels' slabs in the scratch file (the path of large volumes) or in memory give the
+// same bytes, and the nameless scratch file leaves nothing behind.
+TEST(Determinism, SpilledCoarseLevelsGiveTheSameBytes) {
+  Volume v = make_volume({50, 40, 37}, 22, 300);
+  std::string a = temp_path("mem.vpk"), b = temp_path("spill.vpk");
+  write(a, v, options_for(v, 8, 2));
+  WriterOptions o = options_for(v, 8, 3);
+  o.coarse_levels_memory_bytes = 0;
+  write(b, v, o);
+  EXPECT_TRUE(read_bytes(a) == read_bytes(b));
+  check_all_levels(b, v);
+  for (const auto& entry : std::filesystem::directory_iterator(temp_dir()))
+    EXPECT_EQ(entry.path().string().find(".spill"), std::string::npos) << entry.path();
+}
+
+// A merge's path (provide_level0_slab + append_level1_slice, from encode_level0_slab's bricks and
+// level-1 slices) writes the bytes append_slice writes: odd slice counts, a short last slab, uint8
+// and uint16 labels, a slab count that is not a power of two.
+TEST(Writer, Level1SlicesWithProvidedLevel0GiveTheSameBytes) {
+  struct Shape {
+    Dims dims;
+    int edge;
+    std::uint32_t max_label;
+  };
+  for (const Shape& sh :
+       {Shape{{50, 40, 37}, 8, 300}, Shape{{33, 20, 21}, 4, 40}, Shape{{70, 30, 64}, 16, 40},
+        Shape{{20, 20, 1}, 4, 40}, Shape{{7, 5, 3}, 8, 40}}) {  // the last: one level, no level 1
+    Volume v = make_volume(sh.dims, 9, sh.max_label);
+    const WriterOptions o = options_for(v, sh.edge, 2);
+    std::string whole = temp_path("whole.vpk"), merged = temp_path("merged.vpk");
+    write(whole, v, o);
+    {
+      Writer w(merged, o);
+      const std::size_t plane = std::size_t(sh.dims[0] * sh.dims[1]);
+      const std::int64_t e = sh.edge;
+      for (std::int64_t bz = 0; bz < level0_slab_count(o); ++bz) {
+        std::vector<const void*> slab;
+        for (std::size_t c = 0; c < 3; ++c)
+          slab.push_back(v.data[c].data() +
+                         plane * std::size_t(bz * e) * (c == 0 ? 4 : 2));  // labels as uint16
+        std::vector<std::vector<std::uint8_t>> level1;
+        w.provide_level0_slab(bz, encode_level0_slab(o, bz, slab, &level1));
+        const std::size_t n1 =
+            level1[0].empty() ? 0 : std::size_t((std::min(e, sh.dims[2] - bz * e) + 1) / 2);
+        for (std::size_t k = 0; k < n1; ++k) {
+          std::vector<const void*> slice;
+          for (const auto& l : level1)
+            slice.push_back(l.data() + l.size() / n1 * k);
+          w.append_level1_slice(slice);
+        }
+      }
+      w.finish();
+      EXPECT_EQ(w.slices_written(), sh.dims[2]);
+    }
+    EXPECT_TRUE(read_bytes(whole) == read_bytes(merged))
+        << sh.dims[0] << "x" << sh.dims[1] << "x" << sh.dims[2] << " edge " << sh.edge;
+  }
+}
+
 // The writer reduces full 2x2x2 blocks on fast paths (shift for means, equal-alpha shortcut,
 // eight-equal-IDs shortcut) and the edges on the reduce_* functions: both must agree exactly
 // with the naive reference on arbitrary values, not only the smooth phantom. Random alphas mix

@@ -3,6 +3,7 @@
 // missing, out-of-date or corrupt slab file stops the merge with an error naming it.
 #include <gtest/gtest.h>
 
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <memory>
@@ -12,6 +13,7 @@
 #include "test_support.h"
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
+#include "vispack/common/hash.h"
 #include "vispack/phantom/phantom.h"
 #include "vispack/pipeline/pack.h"
 #include "vispack/pipeline/run.h"
@@ -227,4 +229,60 @@ TEST_F(PackShards, CroppedAndKeptByteIdentical) {
   fs::remove_all(config_.work_dir + "/pack");
   const std::string message = error_of<InputError>([&] { run_pack_merge(config_, quiet()); });
   EXPECT_NE(message.find("slab_0000.vpkslab"), std::string::npos) << message;
+}
+
+// An odd slice count (21: the last slab short and odd, so its last level-1 slice comes from one
+// slice), at brick edges 8 (3 slabs) and 32 (one short slab): the merge, fed the shards' level-1
+// slices, equals the whole-stack pack byte for byte.
+TEST(PackShardsShapes, OddSliceCountShortLastSlabEdges8And32) {
+  test::TempDir dir("vispack-pack-shards-odd");
+  phantom::PhantomOptions po;
+  po.preset = "tiny";
+  po.seed = 12;
+  po.slices = 21;
+  po.quiet = true;
+  phantom::make_phantom(dir.path(), po);
+  const std::string path = dir / "config.json";
+  nlohmann::json raw = nlohmann::json::parse(read_file(path));
+  raw["vdb"]["enabled"] = false;
+  for (int edge : {8, 32}) {
+    raw["pack"]["brick_edge"] = edge;
+    write_file_atomic(path, raw.dump(2));
+    Config config = load_config(path);
+    RunOptions options;
+    options.quiet = true;
+    options.to = "pack";
+    run_pipeline(config, options);
+    const std::string whole = read_file(config.output);
+    fs::remove(config.output);
+    fs::remove_all(config.work_dir + "/pack");
+    fs::remove_all(config.work_dir + "/pack-slabs");
+    StageOptions o;
+    o.quiet = true;
+    for (const char* s : {"0:9", "9:21"}) {
+      o.slices = s;
+      run_pack_stage(config, o);
+    }
+    o.slices.clear();
+    run_pack_merge(config, o);
+    EXPECT_TRUE(read_file(config.output) == whole) << "brick edge " << edge;
+  }
+}
+
+// A slab file of version 1 (no level-1 slices) is refused with a message naming it and the shard.
+TEST_F(PackShards, OldSlabVersionRefused) {
+  run_pack_stage(config_, shard("0:12"));
+  run_pack_stage(config_, shard("12:24"));
+  std::string bytes = read_file(slab(2));
+  const std::size_t at = bytes.find("\"version\":2");
+  ASSERT_NE(at, std::string::npos);
+  bytes[at + 10] = '1';
+  const std::uint64_t sum = xxh64(bytes.data(), bytes.size() - 8);
+  std::memcpy(&bytes[bytes.size() - 8], &sum, 8);
+  fs::remove(slab(2));
+  write_file_atomic(slab(2), bytes);
+  std::string message = error_of<InputError>([&] { run_pack_merge(config_, quiet()); });
+  EXPECT_NE(message.find("slab_0002.vpkslab: slab file version 1"), std::string::npos) << message;
+  EXPECT_NE(message.find("--slices 16:24"), std::string::npos) << message;
+  EXPECT_FALSE(fs::exists(config_.output));
 }

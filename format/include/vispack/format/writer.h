@@ -11,14 +11,19 @@
 //   for (z ...) writer.append_slice({rgba_slice, ct_slice, label_slice});
 //   writer.finish();  // the file appears complete at "out/volume.vpk", or not at all
 //
-// Memory: the writer keeps, per level and channel, the slab of brick_edge slices being filled
-// and the previous slab while its bricks are compressed (about 2 x 8/7 brick rows of level 0),
-// plus the compressed bricks of those slabs and one brick of scratch per thread, whatever nz
-// is.
+// Memory, whatever nz is: one level-0 brick row (dims[0] x dims[1] x brick_edge voxels of every
+// stored channel: the slab being filled; nothing else of that size), plus one slice of each
+// coarser level and two per level being reduced, one band of bricks (one brick row along y of
+// one channel of a coarser level) read back to be encoded, a few compressed bricks (each is
+// written as soon as it and the bricks before it are made) and one brick of scratch per thread.
+// The coarser levels' partly filled slabs (a third of a level-0 row at most) are kept in memory
+// up to WriterOptions::coarse_levels_memory_bytes, else in a nameless temporary file beside the
+// output, so they sit in the page cache, not in the resident set.
 // Threads: `threads` persistent compression threads, started by the constructor and joined by
-// finish() or the destructor. A full slab is handed to them and compressed while the calling
-// thread fills the next slab and builds the pyramid; the calling thread also makes bricks
-// while it waits for them.
+// finish() or the destructor. When a slab is full, its bricks are made by them and by the
+// calling thread together, and append_slice returns once they are written: the slab buffer is
+// then refilled (the price of holding one row: reading the next slices does not overlap the
+// compression of this slab).
 // Determinism: the same slices and options give a byte-identical file, whatever `threads`
 // (no timestamps; slabs are written in the order they fill, bricks in index order within).
 // Thread-safety: a Writer is used from one thread at a time.
@@ -52,6 +57,10 @@ struct WriterOptions {
   // config hash, input hashes), missing/duplicated slices, registration quality... It must not
   // contain anything that changes between runs if the output is to be byte-reproducible.
   nlohmann::json extra_metadata = nlohmann::json::object();
+  // The coarser levels' partly filled slabs (about a third of a level-0 brick row) stay in memory
+  // up to this many bytes, else they go to a nameless temporary file beside the output (page
+  // cache, not resident memory). The file is the same either way.
+  std::uint64_t coarse_levels_memory_bytes = std::uint64_t(64) << 20;
 };
 
 // One level-0 brick encoded exactly as the Writer stores it (SPEC.md "Codecs"): what a shard of a
@@ -76,10 +85,15 @@ std::int64_t level0_slab_count(const WriterOptions& options);
 // label sets, whatever `options.threads`. `channel_slabs[c]` holds the slab's slices of channel c
 // one after the other, in append_slice's convention (labels as uint16). Returns the bricks in
 // index order within the slab: channel, then by, then bx (bx fastest).
+// With `level1` non-null, also gives the slab's level-1 slices as the Writer reduces them: per
+// stored channel, ceil(nzv / 2) slices of ceil(dims[0] / 2) x ceil(dims[1] / 2) voxels of the
+// stored type, one after the other (what Writer::append_level1_slice takes); empty vectors when
+// the volume has a single level.
 // Throws std::invalid_argument (bad options, bz out of range, wrong pointer count), InputError
 // (a label ID does not fit the stored type).
-std::vector<EncodedBrick> encode_level0_slab(const WriterOptions& options, std::int64_t bz,
-                                             const std::vector<const void*>& channel_slabs);
+std::vector<EncodedBrick> encode_level0_slab(
+    const WriterOptions& options, std::int64_t bz, const std::vector<const void*>& channel_slabs,
+    std::vector<std::vector<std::uint8_t>>* level1 = nullptr);
 
 // Decodes `brick` into brick_edge^3 voxels of `stored` type at `out` (brick_edge^3 *
 // channel_type_bytes(stored) bytes): the merge of a sharded pack rebuilds level 0 from it to
@@ -87,6 +101,13 @@ std::vector<EncodedBrick> encode_level0_slab(const WriterOptions& options, std::
 // its checksum or does not decode to exactly that size.
 void decode_encoded_brick(const EncodedBrick& brick, ChannelType stored, int brick_edge,
                           std::uint8_t* out, const std::string& what);
+
+// One zstd frame of `size` bytes at `level` (the level-1 slices a sharded pack's slab file
+// carries), and its inverse, which throws FormatError naming `what` unless the frame decodes to
+// exactly out_size bytes.
+std::vector<std::uint8_t> compress_bytes(const void* data, std::size_t size, int level);
+void decompress_bytes(const std::uint8_t* src, std::size_t size, std::uint8_t* out,
+                      std::size_t out_size, const std::string& what);
 
 class Writer {
  public:
@@ -110,10 +131,22 @@ class Writer {
   // Hands over the already encoded level-0 bricks of slab `bz` (encode_level0_slab, possibly
   // run by another process): the Writer stores them as they are instead of encoding that slab.
   // Call it before the slab's last slice is appended; the slab's slices must still be appended
-  // (the coarser levels are computed from them), and must be the slices the bricks were encoded
-  // from, or the file is inconsistent. Throws std::invalid_argument (bz out of range, slab
-  // already flushed or provided, wrong brick count).
+  // (the coarser levels are computed from them), or its level-1 slices (append_level1_slice),
+  // and must be the slices the bricks were encoded from, or the file is inconsistent. A volume
+  // of a single level (it fits one brick) has no level 1: provide its one slab, then finish().
+  // Throws std::invalid_argument (bz out of range, slab already flushed or provided, wrong brick
+  // count).
   void provide_level0_slab(std::int64_t bz, std::vector<EncodedBrick> bricks);
+
+  // For a merge that has level 0 only as encoded bricks: appends the next slice of level 1 (the
+  // 2x2x2 reduction of level-0 slices 2k and 2k + 1, or of the last slice alone when dims[2] is
+  // odd, by downsample_slice: level1_slices_of_slab gives them), each pointer holding
+  // ceil(dims[0] / 2) * ceil(dims[1] / 2) voxels of the channel's STORED type (labels narrowed).
+  // Every level-0 slab must be provided (provide_level0_slab) before its first level-1 slice;
+  // a Writer fed this way takes no append_slice. slices_written() counts the level-0 slices
+  // covered. The file is byte-identical to append_slice of the level-0 slices the bricks and
+  // level-1 slices came from. Throws std::invalid_argument (misuse, naming it).
+  void append_level1_slice(const std::vector<const void*>& channel_slices);
 
   // Slices appended so far.
   std::int64_t slices_written() const;

@@ -18,7 +18,10 @@
 // moves by the box's corner; metadata extra.crop records margin, box (full-resolution output
 // pixels: x, y, width, height) and the uncropped dims. The masks are read once more for it.
 // Streaming: one slice of each channel is read, converted and appended at a time; the format
-// Writer keeps one slab of brick_edge slices, so memory stays bounded by one brick row.
+// Writer keeps one level-0 slab of brick_edge slices and spills the coarser levels' slabs to a
+// nameless scratch file (format/writer.h "Memory"), so peak memory is about one level-0 brick row
+// plus ~150 MB, whatever the slice count (docs/BENCHMARKS.md "Pack memory against the slice
+// count").
 // Metadata ("extra"): label table (palette.json, or the IDs present when there is none), missing
 // slice numbers (gaps in the rgb file numbering), black and duplicated slices and registration
 // quality (from transforms.json), provenance (vispack version, config hash, input hashes: xxHash64
@@ -29,9 +32,10 @@
 // [A, B), so any partition of the stack into ranges partitions the slabs (a range holding no slab
 // start does nothing). Each slab becomes <work>/pack-slabs/slab_NNNN.vpkslab (NNNN = bz), written
 // atomically, recorded in the pack-slabs manifest (resume keeps finished slabs; --force redoes
-// them). run_pack_merge then writes config.output from every slab file: level-0 payloads are
-// copied as they are (never recompressed), decoded only to compute the coarser levels, and the
-// file is byte-identical to a whole-stack pack of the same intermediates (the one brick encoder
+// them). A slab file also carries the slab's level-1 slices (zstd). run_pack_merge then writes
+// config.output from every slab file: level-0 payloads are copied as they are (never decoded or
+// recompressed), the coarser levels are built from the level-1 slices, and the file is
+// byte-identical to a whole-stack pack of the same intermediates (the one brick encoder
 // and the same slab order: format/writer.h). A merge refuses a missing slab file, one written with
 // other options, and one whose slices changed since (InputError naming the file and the --slices
 // shard to rerun). The merge records the whole pack's input fingerprint, so a later whole pack

@@ -1,0 +1,43 @@
+#!/bin/bash
+# The peer of issue #12's pack throughput goal: `zstd -3 -T2` of the raw level-0 bytes of a packed
+# file (every channel at level 0 as vispack-extract writes it, NRRD raw, concatenated), timed under
+# /usr/bin/time -v; appends one row to scripts/bench/pack_memory.sh's CSV (binary "zstd-3-T2").
+# usage: scripts/bench/pack_zstd_peer.sh FILE.vpk CSV [SCRATCH_DIR]
+set -euo pipefail
+here=$(cd "$(dirname "$0")/../.." && pwd)
+vpk=$1
+csv=$2
+scratch=$(mktemp -d "${3:-${TMPDIR:-/tmp}}/pack-zstd-peer-XXXXXX")
+trap 'rm -rf "$scratch"' EXIT
+extract=${EXTRACT:-$here/build/bin/vispack-extract}
+read -r dx dy dz edge < <(/usr/bin/python3 - "$vpk" <<'PY'
+import json, struct, sys
+f = open(sys.argv[1], "rb")
+h = f.read(4096)
+# header: magic(8) ... metadata_offset / size at fixed places (format/SPEC.md); use the JSON.
+import re
+data = open(sys.argv[1], "rb").read()
+m = re.search(rb'"dims":\[(\d+),(\d+),(\d+)\]', data[-(1 << 22):])
+e = re.search(rb'"brick_edge":(\d+)', data[-(1 << 22):])
+print(m.group(1).decode(), m.group(2).decode(), m.group(3).decode(), e.group(1).decode())
+PY
+)
+for ch in rgba ct labels; do
+  "$extract" "$vpk" --channel "$ch" -o "$scratch/$ch.nrrd" >/dev/null 2>&1 || true
+done
+cat "$scratch"/*.nrrd > "$scratch/raw"
+rm -f "$scratch"/*.nrrd
+/usr/bin/time -v zstd -3 -T2 -q -c "$scratch/raw" 2> "$scratch/time.txt" > "$scratch/raw.zst"
+/usr/bin/python3 - "$scratch/time.txt" "$scratch/raw.zst" "$edge" "$dz" "$dx" "$dy" >> "$csv" <<'PY'
+import os, re, sys
+t = open(sys.argv[1]).read()
+def f(key):
+    return re.search(re.escape(key) + r": ([0-9.:]+)", t).group(1)
+wall = f("Elapsed (wall clock) time (h:mm:ss or m:ss)").split(":")
+wall_s = sum(float(x) * 60 ** i for i, x in enumerate(reversed(wall)))
+edge, dz, dx, dy = sys.argv[3:7]
+print(",".join(str(x) for x in ["zstd-3-T2", edge, dz, dx, dy, 7,
+                                f("Maximum resident set size (kbytes)"), f("User time (seconds)"),
+                                f("System time (seconds)"), round(wall_s, 2),
+                                os.path.getsize(sys.argv[2])]))
+PY
