@@ -242,7 +242,7 @@ const std::vector<std::pair<std::string, std::vector<std::string>>>& known_keys(
        {"brick_edge", "zstd_level", "downsample", "threads", "keep_outside_body",
         "crop_margin_px"}},
       {"work", {"write_registered", "write_ct", "overlay_max_px"}},
-      {"vdb", {"enabled"}},
+      {"vdb", {"enabled", "level", "max_memory_mb"}},
   };
   return table;
 }
@@ -456,6 +456,16 @@ Config load_config(const std::string& path) {
   {
     Section s = top.child("vdb");
     config.vdb.enabled = s.boolean("enabled", true);
+    if (const json* level = s.find("level"); level && !level->is_null()) {
+      if (level->is_string()) {
+        if (level->get<std::string>() != "auto")
+          s.fail("level",
+                 cat("\"", level->get<std::string>(), "\" is not a level (0..15 or \"auto\")"));
+      } else {
+        config.vdb.level = int(s.integer("level", 0, 0, 15));
+      }
+    }
+    config.vdb.max_memory_mb = s.integer("max_memory_mb", 8192, 16, std::int64_t(1) << 30);
     s.finish();
   }
   std::string default_vdb = fs::path(config.output).replace_extension(".vdb").string();
@@ -561,7 +571,8 @@ json config_to_json(const Config& config, const std::string& base_dir) {
   out["work"] = {{"write_registered", config.work.write_registered},
                  {"write_ct", config.work.write_ct},
                  {"overlay_max_px", config.work.overlay_max_px}};
-  out["vdb"] = {{"enabled", config.vdb.enabled}};
+  out["vdb"] = {{"enabled", config.vdb.enabled}, {"max_memory_mb", config.vdb.max_memory_mb}};
+  out["vdb"]["level"] = config.vdb.level ? json(*config.vdb.level) : json("auto");
   return out;
 }
 

@@ -1,15 +1,19 @@
 #include "vispack/pipeline/vdb.h"
 
-#include <unistd.h>
+#include <sys/resource.h>
 
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 
 #include <openvdb/openvdb.h>
 
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
+#include "vispack/common/parallel.h"
+#include "vispack/format/reader.h"
 #include "vispack/pipeline/slice_io.h"
+#include "vispack/pipeline/vdb_level.h"
 #include "vispack/pipeline/version.h"
 #include "vispack/pipeline/work_layout.h"
 
@@ -17,20 +21,58 @@ namespace vispack::pipeline {
 
 namespace fs = std::filesystem;
 
+namespace {
+
+// One brick of one channel as edge^3 voxels: decoded into `buffer`, or the uniform value
+// repeated. Returns buffer.data().
+const std::uint8_t* brick_voxels(const format::Reader& reader, const format::BrickInfo& b,
+                                 std::vector<std::uint8_t>& buffer) {
+  const std::size_t bytes = reader.brick_bytes(b.channel);
+  buffer.resize(bytes);
+  if (b.codec == format::Codec::kUniform) {
+    const std::size_t vb =
+        format::channel_type_bytes(reader.channels()[std::size_t(b.channel)].type);
+    for (std::size_t i = 0; i < bytes; i += vb)
+      std::memcpy(buffer.data() + i, b.uniform.data(), vb);
+  } else {
+    reader.decode_brick(b, buffer.data(), buffer.size());
+  }
+  return buffer.data();
+}
+
+double peak_rss_mb() {
+  struct rusage usage {};
+  getrusage(RUSAGE_SELF, &usage);
+  return double(usage.ru_maxrss) / 1024.0;  // ru_maxrss is in KiB on Linux
+}
+
+nlohmann::json estimate_json(const VdbLevelEstimate& e) {
+  return {{"level", e.level},
+          {"dims", e.dims},
+          {"active_voxels", e.active_voxels},
+          {"leaves", e.leaves},
+          {"mapped_mb", double(e.mapped_bytes) / (1024.0 * 1024.0)},
+          {"scanned_mb", double(e.scanned_bytes) / (1024.0 * 1024.0)},
+          {"estimated_mb", e.bytes / (1024.0 * 1024.0)},
+          {"exact", e.exact}};
+}
+
+}  // namespace
+
 StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
   if (!config.vdb.enabled || config.vdb_output.empty())
     throw ConfigError(cat(config.path, ": vdb.enabled is false: no OpenVDB export configured"));
-  const StackInputs inputs = read_stack_inputs(config);
-  const int n = int(inputs.rgb.size());
-  require_whole_stack(options, n, "vispack-vdb");
-  const cv::Size size = inputs.size();
-  const bool has_ct = config.ct.has_value(), has_labels = config.seg.has_value();
+  require_whole_stack(options, int(stack_slices(config).size()), "vispack-vdb");
+  if (!fs::exists(config.output))
+    throw InputError(cat(config.output,
+                         ": packed file missing: vispack-vdb exports the packed "
+                         "file's pyramid (run vispack-pack first)"));
 
-  Fingerprint fp = intermediates_fingerprint(config, inputs);
-  fp.text(config.vdb_output);
+  Fingerprint fp;
+  fp.file(config.output).text(config.vdb_output);
   StageOptions unit = options;
   unit.slices.clear();
-  StageRun run(config, "vdb", 1, unit, {"vdb", "spacing_mm", "rgb", "ct", "seg"});
+  StageRun run(config, "vdb", 1, unit, {"vdb"});
   run.remove_stale_temporaries_of(config.vdb_output);
   const std::string input = fp.str();
   if (run.up_to_date(0, input, {config.vdb_output})) {
@@ -38,48 +80,108 @@ StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
     return run.finish(config.vdb_output);
   }
 
+  const format::Reader reader = format::Reader::open(config.output);
+  const VdbLevelChoice choice = choose_vdb_level(config, reader, run.threads());
+  const int level = choice.level;
+  const format::LevelInfo& info = reader.level(level);
+  const std::string chosen = describe_vdb_choice(choice);
+  if (!options.quiet)
+    std::printf("vdb: exporting %s (%s)\n", chosen.c_str(),
+                choice.automatic ? "the finest level within vdb.max_memory_mb" : "vdb.level");
+  std::fflush(stdout);
+
+  const int rgba = reader.channel_index("rgba");
+  const std::optional<int> ct_channel = reader.find_channel("ct");
+  const std::optional<int> label_channel = reader.find_channel("labels");
+  const bool labels16 = label_channel && reader.channels()[std::size_t(*label_channel)].type ==
+                                             format::ChannelType::kUint16;
+
   openvdb::initialize();
   auto ct_grid = openvdb::FloatGrid::create(-1024.0f);
   auto label_grid = openvdb::Int32Grid::create(0);
   auto rgb_grid = openvdb::Vec3SGrid::create(openvdb::Vec3s(0, 0, 0));
+  // Index (i, j, k) of the level has its centre at origin_mm + (i, j, k) * spacing_mm.
   openvdb::math::Mat4d scale = openvdb::math::Mat4d::identity();
-  scale.setToScale(
-      openvdb::Vec3d(config.spacing_mm[0], config.spacing_mm[1], config.spacing_mm[2]));
+  scale.setToScale(openvdb::Vec3d(info.spacing_mm[0], info.spacing_mm[1], info.spacing_mm[2]));
   auto xform = openvdb::math::Transform::createLinearTransform(scale);
+  xform->postTranslate(openvdb::Vec3d(info.origin_mm[0], info.origin_mm[1], info.origin_mm[2]));
   ct_grid->setTransform(xform);
   label_grid->setTransform(xform->copy());
   rgb_grid->setTransform(xform->copy());
   auto ct_acc = ct_grid->getAccessor();
   auto label_acc = label_grid->getAccessor();
   auto rgb_acc = rgb_grid->getAccessor();
-  std::uint64_t active = 0, bytes = 0;
-  for (int k = 0; k < n; ++k) {
-    const Intermediates in = read_intermediates(config, inputs, k);
-    const cv::Mat &mask = in.mask, &rgb = in.rgb, &ct = in.ct, &labels = in.labels;
-    bytes += in.bytes;
-    for (int y = 0; y < size.height; ++y) {
-      const std::uint8_t* m = mask.ptr<std::uint8_t>(y);
-      for (int x = 0; x < size.width; ++x) {
-        if (!m[x]) continue;
-        openvdb::Coord ijk(x, y, k);
-        const cv::Vec3b& c = rgb.at<cv::Vec3b>(y, x);
-        rgb_acc.setValue(ijk, openvdb::Vec3s(c[0] / 255.0f, c[1] / 255.0f, c[2] / 255.0f));
-        if (has_ct) ct_acc.setValue(ijk, float(int(ct.at<std::uint16_t>(y, x)) - 32768));
-        if (has_labels) label_acc.setValue(ijk, int(labels.at<std::uint16_t>(y, x)));
-        ++active;
+
+  // Brick by brick in index order (OpenVDB trees are written from one thread); a voxel is active
+  // where the packed alpha (body coverage) is > 0: at level 0 of an undownsampled file exactly
+  // the body mask.
+  const std::int64_t edge = reader.brick_edge();
+  const auto& grid = info.bricks;
+  std::vector<std::uint8_t> rgba_buf, ct_buf, label_buf;
+  std::uint64_t active = 0;
+  for (std::int64_t bz = 0; bz < grid[2]; ++bz)
+    for (std::int64_t by = 0; by < grid[1]; ++by)
+      for (std::int64_t bx = 0; bx < grid[0]; ++bx) {
+        const format::BrickInfo& rb = reader.brick(rgba, level, bx, by, bz);
+        if (rb.max[3] == 0) continue;
+        const std::uint8_t* c = brick_voxels(reader, rb, rgba_buf);
+        const std::uint8_t* h =
+            ct_channel ? brick_voxels(reader, reader.brick(*ct_channel, level, bx, by, bz), ct_buf)
+                       : nullptr;
+        const std::uint8_t* l =
+            label_channel
+                ? brick_voxels(reader, reader.brick(*label_channel, level, bx, by, bz), label_buf)
+                : nullptr;
+        const std::int64_t nx = std::min(edge, info.dims[0] - bx * edge);
+        const std::int64_t ny = std::min(edge, info.dims[1] - by * edge);
+        const std::int64_t nz = std::min(edge, info.dims[2] - bz * edge);
+        for (std::int64_t z = 0; z < nz; ++z)
+          for (std::int64_t y = 0; y < ny; ++y)
+            for (std::int64_t x = 0; x < nx; ++x) {
+              const std::size_t v = std::size_t((z * edge + y) * edge + x);
+              const std::uint8_t* px = c + 4 * v;
+              if (px[3] == 0) continue;
+              const openvdb::Coord ijk(int(bx * edge + x), int(by * edge + y), int(bz * edge + z));
+              rgb_acc.setValue(ijk, openvdb::Vec3s(px[0] / 255.0f, px[1] / 255.0f, px[2] / 255.0f));
+              if (h) {
+                std::int16_t hu;
+                std::memcpy(&hu, h + 2 * v, 2);
+                ct_acc.setValue(ijk, float(hu));
+              }
+              if (l) {
+                std::uint16_t id = l[v];
+                if (labels16) std::memcpy(&id, l + 2 * v, 2);
+                label_acc.setValue(ijk, int(id));
+              }
+              ++active;
+            }
       }
-    }
-  }
+
+  // Said in the file (per grid and for the file), the report and the stdout line above.
+  openvdb::MetaMap meta;
+  meta.insertMeta("vispack_version", openvdb::StringMetadata(version_string()));
+  meta.insertMeta("vispack_level", openvdb::Int32Metadata(level));
+  meta.insertMeta("vispack_level_choice",
+                  openvdb::StringMetadata(choice.automatic ? "auto" : "vdb.level"));
+  meta.insertMeta("vispack_voxel_size_mm",
+                  openvdb::Vec3DMetadata(
+                      openvdb::Vec3d(info.spacing_mm[0], info.spacing_mm[1], info.spacing_mm[2])));
+  meta.insertMeta("vispack_origin_mm",
+                  openvdb::Vec3DMetadata(
+                      openvdb::Vec3d(info.origin_mm[0], info.origin_mm[1], info.origin_mm[2])));
+  meta.insertMeta("vispack_source", openvdb::StringMetadata(fs::path(config.output).filename()));
   openvdb::GridPtrVec grids;
   auto name_grid = [&](openvdb::GridBase::Ptr g, const char* name, const char* units) {
     g->setName(name);
-    g->insertMeta("vispack_version", openvdb::StringMetadata(version_string()));
+    for (auto it = meta.beginMeta(); it != meta.endMeta(); ++it)
+      g->insertMeta(it->first, *it->second);
     g->insertMeta("units", openvdb::StringMetadata(units));
     grids.push_back(g);
   };
-  if (has_ct) name_grid(ct_grid, "ct", "HU");
-  if (has_labels) name_grid(label_grid, "labels", "id");
+  if (ct_channel) name_grid(ct_grid, "ct", "HU");
+  if (label_channel) name_grid(label_grid, "labels", "id");
   name_grid(rgb_grid, "rgb", "rgb01");
+  const std::uint64_t leaves = rgb_grid->tree().leafCount();
 
   make_directories(fs::path(config.vdb_output).parent_path().string());
   // OpenVDB writes by path: it writes the AtomicFile's temporary, which commit() then fsyncs and
@@ -87,20 +189,31 @@ StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
   AtomicFile out(config.vdb_output);
   try {
     openvdb::io::File file(out.temp_path());
-    file.write(grids);  // default compression: Blosc if available, else zip
+    file.write(grids, meta);  // default compression: Blosc if available, else zip
     file.close();
   } catch (const openvdb::Exception& e) {
     throw IoError(cat(config.vdb_output, ": cannot write: ", e.what()));
   }
   out.commit();
-  run.done(0, input, {config.vdb_output}, bytes);
+  run.done(0, input, {config.vdb_output}, reader.file_size());
   run.set_report("output", config.vdb_output);
   run.set_report("output_bytes", std::uint64_t(fs::file_size(config.vdb_output)));
   nlohmann::json names = nlohmann::json::array();
   for (const auto& g : grids)
     names.push_back(g->getName());
   run.set_report("grids", names);
+  run.set_report("level", level);
+  run.set_report("level_choice", choice.automatic ? "auto" : "vdb.level");
+  run.set_report("voxel_size_mm", info.spacing_mm);
+  run.set_report("origin_mm", info.origin_mm);
+  run.set_report("max_memory_mb", config.vdb.max_memory_mb);
+  nlohmann::json estimates = nlohmann::json::array();
+  for (const auto& e : choice.estimates)
+    estimates.push_back(estimate_json(e));
+  run.set_report("estimates", estimates);
+  run.set_report("peak_rss_mb", peak_rss_mb());
   run.set_quality("active_voxels", active);
+  run.set_quality("leaves", leaves);
   return run.finish(config.vdb_output);
 }
 

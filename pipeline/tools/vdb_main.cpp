@@ -4,7 +4,11 @@
 int main(int argc, char** argv) {
   return vispack::pipeline::stage_main(
       "vispack-vdb", argc, argv,
-      "Writes the OpenVDB export (config \"vdb_output\"): FloatGrid ct (HU), Int32Grid labels, "
-      "Vec3SGrid rgb (0..1), active inside the body mask, voxel size = spacing_mm. Not sharded.",
+      "Writes the OpenVDB export (config \"vdb_output\") of one pyramid level of the packed file "
+      "(config \"output\", written by vispack-pack): FloatGrid ct (HU), Int32Grid labels, "
+      "Vec3SGrid rgb (0..1), active where the packed alpha > 0, voxel size = the level's "
+      "spacing. Level: vdb.level, or the finest whose estimated memory fits vdb.max_memory_mb "
+      "(default 8192 MiB); a vdb.level over the budget is a config error. Prints the level "
+      "chosen (also in work/vdb/report.json and the file's metadata). Not sharded.",
       vispack::pipeline::run_vdb_stage);
 }

@@ -1,15 +1,24 @@
 // vispack-vdb: vdb_print lists the three grids; reading back with OpenVDB gives the values of the
-// intermediates, active only inside the mask, with the anisotropic voxel size.
+// intermediates, active only inside the mask, with the anisotropic voxel size. Under a memory
+// budget (vdb.max_memory_mb) it exports the finest level that fits, with the values and voxel
+// size of the packed file's level; an explicit vdb.level over the budget is a ConfigError.
 #include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstring>
+#include <filesystem>
 
 #include <openvdb/openvdb.h>
 
 #include "test_support.h"
 #include "vispack/common/atomic_file.h"
+#include "vispack/format/reader.h"
 #include "vispack/phantom/phantom.h"
 #include "vispack/pipeline/run.h"
 #include "vispack/pipeline/slice_io.h"
 #include "vispack/pipeline/stage_run.h"
+#include "vispack/pipeline/vdb.h"
+#include "vispack/pipeline/vdb_level.h"
 #include "vispack/pipeline/work_layout.h"
 
 using namespace vispack;
@@ -48,6 +57,10 @@ TEST(Vdb, GridsValuesAndVdbPrint) {
   for (const char* name : {"Name: ct", "Name: labels", "Name: rgb"})
     EXPECT_NE(out.find(name), std::string::npos) << out;
   EXPECT_NE(out.find("voxel dimensions: [0.5, 0.5, 1]"), std::string::npos) << out;
+  // The default budget exports level 0 of a small volume and says so in the report.
+  auto report = nlohmann::json::parse(read_file(config.work_dir + "/vdb/report.json"));
+  EXPECT_EQ(report["level"], 0);
+  EXPECT_EQ(report["level_choice"], "auto");
 
   openvdb::initialize();
   openvdb::io::File file(config.vdb_output);
@@ -102,4 +115,240 @@ TEST(Vdb, GridsValuesAndVdbPrint) {
           test::bin("vispack-vdb") + " --config " + dir / "config.json" + " --slices 0:5", &out),
       2)
       << out;
+}
+
+namespace {
+
+double mib(double bytes) {
+  return bytes / (1024.0 * 1024.0);
+}
+
+// The small phantom (256 x 192 x 64) run once through pack; each test writes its own config
+// variant next to it (same work folder and packed file).
+class VdbLevels : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    dir_ = new test::TempDir;
+    PhantomOptions po;
+    po.preset = "small";
+    po.seed = 3;
+    po.quiet = true;
+    make_phantom(dir_->path(), po);
+    Config config = load_config(*dir_ / "config.json");
+    RunOptions options;
+    options.quiet = true;
+    run_pipeline(config, options);
+  }
+  static void TearDownTestSuite() {
+    delete dir_;
+    dir_ = nullptr;
+  }
+  // The phantom's config with "vdb" replaced and vdb_output `name`.
+  static Config config_with(const nlohmann::json& vdb, const std::string& name) {
+    auto j = nlohmann::json::parse(read_file(*dir_ / "config.json"));
+    j["vdb"] = vdb;
+    j["vdb_output"] = "out/" + name;
+    const std::string path = *dir_ / (name + ".json");
+    write_file_atomic(path, j.dump());
+    return load_config(path);
+  }
+  static test::TempDir* dir_;
+};
+test::TempDir* VdbLevels::dir_ = nullptr;
+
+StageOptions quiet_stage() {
+  StageOptions o;
+  o.quiet = true;
+  return o;
+}
+
+}  // namespace
+
+// The estimate counts exactly the leaves and active voxels the export then builds.
+TEST_F(VdbLevels, EstimateCountsTheLeavesTheExportBuilds) {
+  Config config = config_with({{"level", 0}}, "l0.vdb");
+  run_vdb_stage(config, quiet_stage());
+  const format::Reader reader = format::Reader::open(config.output);
+  const VdbLevelEstimate e = estimate_vdb_level(reader, 0, 2);
+  openvdb::initialize();
+  openvdb::io::File file(config.vdb_output);
+  file.open();
+  auto rgb = openvdb::gridPtrCast<openvdb::Vec3SGrid>(file.readGrid("rgb"));
+  file.close();
+  ASSERT_TRUE(rgb);
+  EXPECT_TRUE(e.exact);
+  EXPECT_EQ(e.leaves, rgb->tree().leafCount());
+  EXPECT_EQ(e.active_voxels, rgb->activeVoxelCount());
+  EXPECT_GT(e.leaves, 500u);
+  EXPECT_NEAR(e.bytes,
+              kVdbFixedBytes + double(e.mapped_bytes) + double(e.leaves) * (6293 + 2188 + 2188),
+              1.0);
+}
+
+// A budget between the estimates of levels 1 and 0 chooses level 1; one between 2 and 1 chooses
+// level 2; the stage says which in the report and in the file's metadata.
+TEST_F(VdbLevels, TinyBudgetChoosesTheFinestLevelThatFits) {
+  const Config base = config_with(nlohmann::json::object(), "auto.vdb");
+  const format::Reader reader = format::Reader::open(base.output);
+  ASSERT_GE(reader.level_count(), 3);
+  // The estimates as choose_vdb_level makes them when it decodes every finer level.
+  double e[3];
+  std::uint64_t resident = 0;
+  for (int l = 0; l < 3; ++l) {
+    const VdbLevelEstimate est = estimate_vdb_level(reader, l, 2, 0, resident);
+    e[l] = est.bytes;
+    resident += est.scanned_bytes;
+  }
+  for (int want = 1; want <= 2; ++want) {
+    // The smallest whole MiB at or above level `want`'s estimate must lie below the finer one's.
+    const std::int64_t budget = std::int64_t(std::ceil(mib(e[want])));
+    ASSERT_LT(double(budget), mib(e[want - 1])) << "level " << want;
+    Config config = config_with({{"max_memory_mb", budget}}, cat("budget", want, ".vdb"));
+    const VdbLevelChoice choice = choose_vdb_level(config, reader, 2);
+    EXPECT_EQ(choice.level, want);
+    EXPECT_TRUE(choice.automatic);
+    ASSERT_EQ(choice.estimates.size(), std::size_t(want + 1));
+    EXPECT_GT(choice.estimates[std::size_t(want - 1)].bytes, double(budget) * 1024 * 1024);
+    EXPECT_LE(choice.chosen().bytes, double(budget) * 1024 * 1024);
+
+    run_vdb_stage(config, quiet_stage());
+    auto report = nlohmann::json::parse(read_file(config.work_dir + "/vdb/report.json"));
+    EXPECT_EQ(report["level"], want);
+    EXPECT_EQ(report["max_memory_mb"], budget);
+    openvdb::initialize();
+    openvdb::io::File file(config.vdb_output);
+    file.open();
+    auto meta = file.getMetadata();
+    auto grid = file.readGrid("ct");
+    file.close();
+    EXPECT_EQ((*meta)["vispack_level"]->str(), std::to_string(want));
+    EXPECT_EQ(grid->metaValue<int>("vispack_level"), want);
+    const auto spacing = reader.spacing_mm(want);
+    EXPECT_DOUBLE_EQ(grid->voxelSize()[0], spacing[0]);
+    EXPECT_DOUBLE_EQ(grid->voxelSize()[2], spacing[2]);
+  }
+}
+
+// The grids at level L hold exactly the packed file's level L: active where alpha > 0, colour
+// c / 255, CT in HU, label IDs; world position of a voxel = the level's origin + index * spacing.
+TEST_F(VdbLevels, GridsAtLevelOneHoldThePackedLevel) {
+  Config config = config_with({{"level", 1}}, "l1.vdb");
+  run_vdb_stage(config, quiet_stage());
+  const format::Reader reader = format::Reader::open(config.output);
+  const int level = 1;
+  const auto dims = reader.dims(level);
+  const std::size_t n = std::size_t(dims[0] * dims[1] * dims[2]);
+  const std::vector<std::uint8_t> rgba = reader.read_level("rgba", level);
+  const std::vector<std::uint8_t> ct = reader.read_level("ct", level);
+  const std::vector<std::uint8_t> labels = reader.read_level("labels", level);
+  // Labels are stored as uint8 when every ID fits (format::stored_channels_for), else uint16.
+  const bool labels16 = reader.channels()[std::size_t(reader.channel_index("labels"))].type ==
+                        format::ChannelType::kUint16;
+
+  openvdb::initialize();
+  openvdb::io::File file(config.vdb_output);
+  file.open();
+  auto ct_grid = openvdb::gridPtrCast<openvdb::FloatGrid>(file.readGrid("ct"));
+  auto label_grid = openvdb::gridPtrCast<openvdb::Int32Grid>(file.readGrid("labels"));
+  auto rgb_grid = openvdb::gridPtrCast<openvdb::Vec3SGrid>(file.readGrid("rgb"));
+  file.close();
+  ASSERT_TRUE(ct_grid && label_grid && rgb_grid);
+  const auto spacing = reader.spacing_mm(level), origin = reader.origin_mm(level);
+  EXPECT_DOUBLE_EQ(rgb_grid->voxelSize()[0], spacing[0]);
+  EXPECT_DOUBLE_EQ(rgb_grid->voxelSize()[1], spacing[1]);
+  EXPECT_DOUBLE_EQ(rgb_grid->voxelSize()[2], spacing[2]);
+  const openvdb::Vec3d world = rgb_grid->indexToWorld(openvdb::Coord(3, 5, 7));
+  for (int a = 0; a < 3; ++a)
+    EXPECT_NEAR(world[a],
+                origin[std::size_t(a)] + spacing[std::size_t(a)] * (a == 0   ? 3
+                                                                    : a == 1 ? 5
+                                                                             : 7),
+                1e-9);
+
+  std::uint64_t active = 0;
+  for (std::size_t v = 0; v < n; ++v)
+    active += rgba[4 * v + 3] > 0;
+  EXPECT_EQ(rgb_grid->activeVoxelCount(), active);
+  EXPECT_EQ(ct_grid->activeVoxelCount(), active);
+  ASSERT_GT(active, 1000u);
+
+  // Every 37th voxel (a few thousand, inside and outside the body), exactly.
+  auto ct_acc = ct_grid->getConstAccessor();
+  auto lab_acc = label_grid->getConstAccessor();
+  auto rgb_acc = rgb_grid->getConstAccessor();
+  std::uint64_t checked = 0, inside = 0, wrong = 0;
+  for (std::size_t v = 0; v < n; v += 37) {
+    const openvdb::Coord ijk(int(v % std::size_t(dims[0])),
+                             int(v / std::size_t(dims[0]) % std::size_t(dims[1])),
+                             int(v / std::size_t(dims[0] * dims[1])));
+    const bool on = rgba[4 * v + 3] > 0;
+    ++checked;
+    if (rgb_acc.isValueOn(ijk) != on || ct_acc.isValueOn(ijk) != on ||
+        lab_acc.isValueOn(ijk) != on) {
+      ++wrong;
+      continue;
+    }
+    if (!on) continue;
+    ++inside;
+    std::int16_t hu;
+    std::uint16_t id;
+    std::memcpy(&hu, &ct[2 * v], 2);
+    id = labels[v];
+    if (labels16) std::memcpy(&id, &labels[2 * v], 2);
+    const openvdb::Vec3s c = rgb_acc.getValue(ijk);
+    if (ct_acc.getValue(ijk) != float(hu) || lab_acc.getValue(ijk) != int(id) ||
+        c != openvdb::Vec3s(rgba[4 * v] / 255.0f, rgba[4 * v + 1] / 255.0f,
+                            rgba[4 * v + 2] / 255.0f))
+      ++wrong;
+  }
+  EXPECT_GT(inside, 300u);
+  EXPECT_GT(checked, 2000u);
+  EXPECT_EQ(wrong, 0u);
+}
+
+// vdb.level over the budget: a ConfigError naming the key, the level, the estimate and the
+// budget; nothing is written. A level the file does not have: a ConfigError too.
+TEST_F(VdbLevels, ExplicitLevelOverBudgetIsAConfigError) {
+  Config config = config_with({{"level", 0}, {"max_memory_mb", 100}}, "over.vdb");
+  try {
+    run_vdb_stage(config, quiet_stage());
+    FAIL() << "no error";
+  } catch (const ConfigError& e) {
+    const std::string m = e.what();
+    EXPECT_NE(m.find("vdb.level: level 0 ("), std::string::npos) << m;
+    EXPECT_NE(m.find("of budget 100.0 MB"), std::string::npos) << m;
+    EXPECT_NE(m.find("does not fit vdb.max_memory_mb"), std::string::npos) << m;
+  }
+  EXPECT_FALSE(std::filesystem::exists(config.vdb_output));
+  Config deep = config_with({{"level", 15}}, "deep.vdb");
+  EXPECT_THROW(run_vdb_stage(deep, quiet_stage()), ConfigError);
+  // The same through the command line: the config error's exit code, the message on stderr.
+  auto r = test::run_command_split(test::bin("vispack-vdb") + " --config " + config.path);
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.err.find("does not fit vdb.max_memory_mb"), std::string::npos) << r.err;
+}
+
+TEST(VdbConfig, LevelAndBudgetKeys) {
+  test::TempDir dir;
+  PhantomOptions po;
+  po.preset = "tiny";
+  po.seed = 1;
+  po.quiet = true;
+  make_phantom(dir.path(), po);
+  auto load_with = [&](const nlohmann::json& vdb) {
+    auto j = nlohmann::json::parse(read_file(dir / "config.json"));
+    j["vdb"] = vdb;
+    write_file_atomic(dir / "c.json", j.dump());
+    return load_config(dir / "c.json");
+  };
+  Config c = load_with(nlohmann::json::object());
+  EXPECT_FALSE(c.vdb.level.has_value());
+  EXPECT_EQ(c.vdb.max_memory_mb, 8192);
+  c = load_with({{"level", "auto"}, {"max_memory_mb", 500}});
+  EXPECT_FALSE(c.vdb.level.has_value());
+  EXPECT_EQ(c.vdb.max_memory_mb, 500);
+  EXPECT_EQ(load_with({{"level", 2}}).vdb.level, 2);
+  EXPECT_THROW(load_with({{"level", "fine"}}), ConfigError);
+  EXPECT_THROW(load_with({{"level", -1}}), ConfigError);
+  EXPECT_THROW(load_with({{"max_memory_mb", 0}}), ConfigError);
 }

@@ -107,8 +107,17 @@ struct WorkOptions {
                                   // (downsampled by block mean); 0 = full size
 };
 
+// Config section "vdb" (the OpenVDB export, vdb.h). The export holds whole grids in memory, so
+// it exports one level of the packed file's pyramid: `level` when set, else the finest level
+// whose estimated memory fits `max_memory_mb` (vdb_level.h). A set `level` whose estimate
+// exceeds the budget is a ConfigError, not an export that might be killed.
 struct VdbOptions {
   bool enabled = true;
+  std::optional<int> level;  // vdb.level: 0 = the packed file's level 0; unset / "auto" = auto
+  // vdb.max_memory_mb: budget for the grids (MiB). 8192 by default: a fixed number, so the level
+  // chosen (and the file written) does not depend on the machine; it leaves 16 GiB of a 24 GiB
+  // machine to everything else and chooses level 1 (~3 GB) for the NLM male (level 0 ~25 GB).
+  std::int64_t max_memory_mb = 8192;
 };
 
 struct Config {
