@@ -252,8 +252,8 @@ class Report:
         self.w(f"Each stage executable run alone (`--threads 2`) under `/usr/bin/time -v` on "
                f"`{r0['phantom'].rsplit('-', 1)[0]}` phantoms of {r0['width']}×{r0['height']} with "
                f"{', '.join(map(str, counts))} slices; peak resident memory (\"Maximum resident set "
-               "size\") in MiB. The pack writer holds at most about two brick rows (2 × 64 slices at the "
-               "default brick edge) by design, so the counts span several rows; a handful of vhp-size "
+               "size\") in MiB. The pack writer holds one level-0 brick row (64 slices at the "
+               "default brick edge; the coarser levels' partial slabs spill to a temporary file) by design, so the counts span several rows; a handful of vhp-size "
                "slices would all fall inside the first row and could not show flatness. Exponent: "
                "log-log least-squares slope of peak memory against the slice count (0 = flat, 1 = "
                "proportional to the volume).\n")
@@ -281,17 +281,19 @@ class Report:
                 f"Flat: {', '.join(f'{s} ({100 * growth[s]:+.0f} %)' for s in flat) or 'none'}. "
                 f"**Not flat: {', '.join(f'{s} ({100 * growth[s]:+.0f} %, {fmt(100 * slope[s])} MiB per 100 slices)' for s in grow) or 'none'}.**")
         if "vdb" in grow:
-            text += (" The OpenVDB export is not flat, and cannot be with OpenVDB's writer: "
+            text += (" The OpenVDB export is not flat at a fixed level, and cannot be with OpenVDB's writer: "
                      "`openvdb::io::File::write` takes whole in-memory grids, so `vispack-vdb` builds "
-                     "the CT, label and colour grids of the full volume (active voxels inside the body) "
-                     "before writing; its memory grows with the body's voxel count, inherently. The "
-                     "packed .vpk, written brick row by brick row, is the bounded-memory path.")
+                     "the CT, label and colour grids of one pyramid level (active voxels inside the body) "
+                     "before writing; at a fixed level its memory grows with the body's voxel count, "
+                     "inherently. It is bounded instead by `vdb.max_memory_mb`: the export estimates each "
+                     "level's memory first and takes the finest level within the budget (these small "
+                     "stacks all fit level 0; the hand-measured OpenVDB section below shows the choice).")
         if "pack" in grow:
-            text += (" pack grows too: beyond the two brick rows it holds, its peak includes the "
+            text += (" pack grows too: beyond the brick row it holds, its peak includes the "
                      "pyramid's coarser levels; see the format details section.")
         elif "pack" in flat:
             text += (f" pack grows {100 * growth['pack']:.0f} % over {counts[-1] // counts[0]}× the slices: "
-                     "close to flat, as the writer holds at most two brick rows (the small remaining growth "
+                     "close to flat, as the writer holds one brick row (the small remaining growth "
                      "is not analysed here).")
         self.w(text + "\n")
         self.summary.append(["peak memory per stage (small slices, " + "/".join(map(str, counts)) + ")",

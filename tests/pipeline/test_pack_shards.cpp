@@ -24,6 +24,15 @@ namespace fs = std::filesystem;
 
 namespace {
 
+// Runs the pipeline up to pack (one process, whole stack) on `config`; returns the packed bytes.
+std::string pack_whole(const Config& config) {
+  RunOptions options;
+  options.quiet = true;
+  options.to = "pack";
+  run_pipeline(config, options);
+  return read_file(config.output);
+}
+
 // One tiny phantom (96x64x24) run to the labels stage, with brick_edge 8 (3 level-0 slabs, 4
 // levels), and the whole-stack pack of it: shared by every test (each works on its own copy of
 // the work folder's pack outputs).
@@ -41,12 +50,7 @@ class PackShards : public ::testing::Test {
     raw["pack"]["brick_edge"] = 8;
     raw["vdb"]["enabled"] = false;
     write_file_atomic(path, raw.dump(2));
-    Config config = load_config(path);
-    RunOptions options;
-    options.quiet = true;
-    options.to = "pack";
-    run_pipeline(config, options);
-    whole_ = new std::string(read_file(config.output));
+    whole_ = new std::string(pack_whole(load_config(path)));
   }
   static void TearDownTestSuite() {
     delete whole_;
@@ -249,11 +253,7 @@ TEST(PackShardsShapes, OddSliceCountShortLastSlabEdges8And32) {
     raw["pack"]["brick_edge"] = edge;
     write_file_atomic(path, raw.dump(2));
     Config config = load_config(path);
-    RunOptions options;
-    options.quiet = true;
-    options.to = "pack";
-    run_pipeline(config, options);
-    const std::string whole = read_file(config.output);
+    const std::string whole = pack_whole(config);
     fs::remove(config.output);
     fs::remove_all(config.work_dir + "/pack");
     fs::remove_all(config.work_dir + "/pack-slabs");
