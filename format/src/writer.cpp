@@ -672,6 +672,19 @@ struct Writer::Impl {
            std::uint64_t(bz * per_channel) + std::uint64_t(i % per_channel);
   }
 
+  // Stops handing out the bricks of `b` and waits for those being made (with `lock` held, which
+  // it takes again if needed). Run on every exit from encode_and_write.
+  struct BatchDrain {
+    Impl& impl;
+    Batch& b;
+    std::unique_lock<std::mutex>& lock;
+    ~BatchDrain() {
+      if (!lock.owns_lock()) lock.lock();
+      if (impl.pending == &b) impl.pending = nullptr;
+      impl.brick_done.wait(lock, [&] { return b.done == b.next; });
+    }
+  };
+
   // Makes bricks [first, first + count) of `source` from `blocks` with every thread, writing each
   // in index order as soon as it is made (its payload freed at once).
   void encode_and_write(const BrickSource& source, std::vector<ChannelBlock> blocks,
@@ -683,10 +696,14 @@ struct Writer::Impl {
     b.count = count;
     b.results.resize(std::size_t(count));
     b.finished.assign(std::size_t(count), 0);
+    if (!own_scratch) own_scratch = std::make_unique<WorkerScratch>();
     std::unique_lock<std::mutex> lock(mutex);
     pending = &b;
     work_ready.notify_all();
-    if (!own_scratch) own_scratch = std::make_unique<WorkerScratch>();
+    // However this function is left (a brick failed, or writing a finished brick threw, e.g.
+    // ENOSPC), `b` lives on this stack: hand out nothing more of it and wait until no worker
+    // still makes one of its bricks, before it goes out of scope.
+    BatchDrain drain{*this, b, lock};
     for (std::int64_t j = 0; j < count; ++j) {
       while (!b.finished[std::size_t(j)] && !b.error) {
         if (pending == &b) {
@@ -695,12 +712,7 @@ struct Writer::Impl {
           brick_done.wait(lock);
         }
       }
-      if (b.error) {
-        // Hand out nothing more; wait for the bricks being made, then report.
-        if (pending == &b) pending = nullptr;
-        brick_done.wait(lock, [&] { return b.done == b.next; });
-        std::rethrow_exception(b.error);
-      }
+      if (b.error) std::rethrow_exception(b.error);  // `drain` waits for the bricks in flight
       lock.unlock();
       BrickResult& r = b.results[std::size_t(j)];
       store(slot(source.level, source.bz, first + j), r.entry, r.payload.data.get(),
