@@ -367,22 +367,25 @@ std::vector<EncodedBrick> encode_level0_slab(const WriterOptions& options, std::
   const int nzv = int(std::min(e, options.dims[2] - bz * e));
   const std::int64_t dx = options.dims[0], dy = options.dims[1];
   const std::size_t plane = std::size_t(dx) * std::size_t(dy);
-  std::vector<std::vector<std::uint8_t>> slabs(stored.size());
+  // The stored bytes of each channel: the caller's slab itself, or (uint8 labels, handed over as
+  // uint16) a narrowed copy. No other copy: a level-0 slab of 2048x1216 slices is ~1 GB.
+  std::vector<std::vector<std::uint8_t>> narrowed(stored.size());
+  std::vector<const std::uint8_t*> slabs(stored.size());
   for (std::size_t c = 0; c < stored.size(); ++c) {
     if (!channel_slabs[c]) {
       throw std::invalid_argument(
           cat("encode_level0_slab: null pointer for channel \"", stored[c].name, "\""));
     }
-    const std::size_t bytes = channel_type_bytes(stored[c].type);
-    slabs[c].resize(plane * std::size_t(nzv) * bytes);
     if (stored[c].type == ChannelType::kUint8) {  // labels arrive as uint16 (append_slice)
+      narrowed[c].resize(plane * std::size_t(nzv));
       const auto* src = static_cast<const std::uint16_t*>(channel_slabs[c]);
       for (int z = 0; z < nzv; ++z)
         narrow_labels(src + std::size_t(z) * plane, plane, dx,
-                      slabs[c].data() + std::size_t(z) * plane, "encode_level0_slab", bz * e + z,
-                      stored[c].name);
+                      narrowed[c].data() + std::size_t(z) * plane, "encode_level0_slab",
+                      bz * e + z, stored[c].name);
+      slabs[c] = narrowed[c].data();
     } else {
-      std::memcpy(slabs[c].data(), channel_slabs[c], slabs[c].size());
+      slabs[c] = static_cast<const std::uint8_t*>(channel_slabs[c]);
     }
   }
   const std::int64_t gx = ceil_div(dx, e), gy = ceil_div(dy, e);
@@ -394,7 +397,7 @@ std::vector<EncodedBrick> encode_level0_slab(const WriterOptions& options, std::
     WorkerScratch scratch;
     for (std::int64_t i = t; i < items; i += threads)
       encode_brick(options, stored, "encode_level0_slab", source,
-                   ChannelBlock{slabs[std::size_t(i / (gx * gy))].data(), 0, dy}, i, scratch,
+                   ChannelBlock{slabs[std::size_t(i / (gx * gy))], 0, dy}, i, scratch,
                    results[std::size_t(i)]);
   });
   if (level1) {
@@ -409,7 +412,7 @@ std::vector<EncodedBrick> encode_level0_slab(const WriterOptions& options, std::
         auto& dst = (*level1)[c];
         dst.resize(std::size_t(hx) * std::size_t(hy) * std::size_t(n1) * bytes);
         for (int k = 0; k < n1; ++k)
-          downsample_slice(stored[c].type, slabs[c].data() + std::size_t(2 * k) * plane * bytes,
+          downsample_slice(stored[c].type, slabs[c] + std::size_t(2 * k) * plane * bytes,
                            std::min(2, nzv - 2 * k), dx, dy,
                            dst.data() + std::size_t(k) * std::size_t(hx * hy) * bytes,
                            resolve_threads(options.threads));

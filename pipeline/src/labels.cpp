@@ -1,5 +1,6 @@
 #include "vispack/pipeline/labels.h"
 #include "vispack/pipeline/labels_stage.h"
+#include "vispack/pipeline/opencv_threads.h"
 #include "vispack/pipeline/work_layout.h"
 
 #include <algorithm>
@@ -478,6 +479,8 @@ StageResult LabelsStageJob::finish() {
 
 StageResult run_labels_stage(const Config& config, const StageOptions& options) {
   LabelsStageJob job(config, options);
+  // Slices spread over the stage's workers; OpenCV's pool off (--threads 1 = one core).
+  ScopedOpenCvThreads opencv_threads(1);
   const SliceRange range = job.run().range();
   parallel_for(range.size(), job.run().threads(), [&](std::int64_t i) {
     const int k = range.first + int(i);

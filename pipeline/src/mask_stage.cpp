@@ -140,7 +140,9 @@ StageResult run_mask_stage(const Config& config, const StageOptions& options) {
   const StackInputs inputs = read_stack_inputs(config);
   MaskStageJob job(config, inputs, options);
   StageRun& run = job.run();
-  ScopedOpenCvThreads opencv_threads(run.threads() > 1 ? 1 : cv::getNumThreads());
+  // The stage spreads slices over run.threads() workers: OpenCV's own pool stays off (with
+  // --threads 1 too, so that one thread means one core, as a SLURM task of one CPU expects).
+  ScopedOpenCvThreads opencv_threads(1);
   const SliceRange range = run.range();
   parallel_for(range.size(), run.threads(), [&](std::int64_t i) {
     const int k = range.first + int(i);

@@ -16,6 +16,7 @@
 #include "vispack/format/downsample.h"
 #include "vispack/format/writer.h"
 #include "vispack/pipeline/labels.h"
+#include "vispack/pipeline/opencv_threads.h"
 #include "vispack/pipeline/register/solve.h"
 #include "vispack/pipeline/slice_io.h"
 #include "vispack/pipeline/version.h"
@@ -576,6 +577,8 @@ StageResult run_pack_shard(const Config& config, const StageOptions& options, co
   StageOptions unit = options;
   unit.slices = cat(s0, ":", s1);
   StageRun run(config, "pack-slabs", int(slabs), unit, kPackSections);
+  // Slices are read and converted on this thread with OpenCV's pool: as many as --threads.
+  ScopedOpenCvThreads opencv_threads(run.threads());
   const std::vector<format::ChannelSpec> stored = format::stored_channels_for(plan.wo);
   std::set<std::uint16_t> ids_seen;
   for (int bz = s0; bz < s1; ++bz) {
@@ -611,6 +614,8 @@ StageResult run_pack_whole(const Config& config, const StageOptions& options,
     run.skip(0);
     return run.finish(config.output);
   }
+  // Slices are read and converted on this thread with OpenCV's pool: as many as --threads.
+  ScopedOpenCvThreads opencv_threads(run.threads());
   make_directories(fs::path(config.output).parent_path().string());
   format::Writer writer(config.output, plan.wo);
   SliceBuffers buffers(plan, 1);

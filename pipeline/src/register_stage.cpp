@@ -128,7 +128,9 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
                {"rgb", "register", "ct", "spacing_mm", "mask.hu_threshold", "mask.gel_colour",
                 "mask.gel_distance", "work.write_registered"},
                stage_inputs);
-  ScopedOpenCvThreads opencv_threads(run.threads() > 1 ? 1 : cv::getNumThreads());
+  // The stage spreads slices over run.threads() workers: OpenCV's own pool stays off (with
+  // --threads 1 too, so that one thread means one core, as a SLURM task of one CPU expects).
+  ScopedOpenCvThreads opencv_threads(1);
   const SliceRange range = run.range();
   const auto t0 = std::chrono::steady_clock::now();
   const std::optional<Similarity> ct_to_rgb =

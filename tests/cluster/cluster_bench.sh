@@ -71,20 +71,42 @@ echo "overhead: 8 chained empty Snakemake --slurm rules: $snake s, $(awk -v c="$
 
 # 2. 1 and 2 workers on the vhp phantom.
 "$bin/vispack-phantom" --out "$tmp/vhp" --preset vhp --slices "$slices" --seed 1 --quiet >/dev/null
-for copy in local w1 w2; do cp -a "$tmp/vhp" "$tmp/$copy"; done
+cp -a "$tmp/vhp" "$tmp/local"
 t=$(now)
 "$bin/vispack-run" "$tmp/local/config.json" --quiet --threads 1 >/dev/null
 local_s=$(elapsed "$t")
 echo "vhp-$slices: vispack-run --threads 1: $local_s s"
-for w in 1 2; do
-  t=$(now)
-  "$root/scripts/vispack-slurm" "$tmp/w$w/config.json" --shards "$w" --bin "$bin" \
-    --jobs-dir "$tmp/w$w/jobs" --wait >"$tmp/w$w.out" 2>&1 || { cat "$tmp/w$w.out"; exit 1; }
-  eval "wall_$w=$(elapsed "$t")"
-  cmp -s "$tmp/local/out/volume.vpk" "$tmp/w$w/out/volume.vpk" || { echo "w$w: packed file differs"; exit 1; }
-  echo "vhp-$slices: vispack-slurm --shards $w ($(ls "$tmp/w$w/jobs/"*.sh | wc -l) jobs): $(eval echo "\$wall_$w") s (byte-identical)"
+# 1 and 2 workers alternate (1 2 1 2 ...), each run on a fresh copy of the phantom. The chain's
+# time runs from the first sbatch to the moment vispack-slurm --wait sees the last job ended
+# (scontrol every 0.5 s; sbatch --wait's own polling, 2, 10, 42, 74 s..., would add up to 32 s).
+# Per step: SLURM's StartTime/EndTime of each job (1 s resolution; kept by MinJobAge).
+reps=${VISPACK_CLUSTER_BENCH_REPS:-2}
+declare -A walls=()
+for rep in $(seq "$reps"); do
+  for w in 1 2; do
+    rm -rf "$tmp/w$w"
+    cp -a "$tmp/vhp" "$tmp/w$w"
+    t=$(now)
+    "$root/scripts/vispack-slurm" "$tmp/w$w/config.json" --shards "$w" --bin "$bin" \
+      --jobs-dir "$tmp/w$w/jobs" --wait --poll 0.5 >"$tmp/w$w.out" 2>&1 || { cat "$tmp/w$w.out"; exit 1; }
+    wall=$(elapsed "$t")
+    walls[$w]+=" $wall"
+    cmp -s "$tmp/local/out/volume.vpk" "$tmp/w$w/out/volume.vpk" || { echo "w$w: packed file differs"; exit 1; }
+    ids=$(sed -n 's/^job IDs: //p' "$tmp/w$w.out")
+    steps=""
+    for id in $ids; do
+      steps+=$(scontrol -o show job "$id" | awk '{
+        for (i = 1; i <= NF; i++) { split($i, kv, "="); v[kv[1]] = kv[2] }
+        cmd = "date -d " v["StartTime"] " +%s"; cmd | getline s; close(cmd)
+        cmd = "date -d " v["EndTime"] " +%s"; cmd | getline e; close(cmd)
+        if (e - s > m) m = e - s; name = v["JobName"] } END { sub("vispack-", "", name); printf " %s %ds", name, m }')
+    done
+    echo "vhp-$slices: rep $rep, vispack-slurm --shards $w ($(ls "$tmp/w$w/jobs/"*.sh | wc -l) jobs): $wall s (byte-identical); longest task per step:$steps"
+  done
 done
-echo "vhp-$slices: speed-up 1 -> 2 workers: $(awk -v a="$wall_1" -v b="$wall_2" 'BEGIN { printf "%.2f", a / b }')x (whole chain, overhead included)"
+median() { tr ' ' '\n' | grep . | sort -g | awk '{ a[NR] = $1 } END { print (NR % 2) ? a[(NR + 1) / 2] : (a[NR / 2] + a[NR / 2 + 1]) / 2 }'; }
+wall_1=$(median <<<"${walls[1]}") wall_2=$(median <<<"${walls[2]}")
+echo "vhp-$slices: median of $reps: 1 worker $wall_1 s, 2 workers $wall_2 s; speed-up 1 -> 2 workers: $(awk -v a="$wall_1" -v b="$wall_2" 'BEGIN { printf "%.2f", a / b }')x (whole chain, SLURM's scheduling included)"
 stop_one_node_slurm
 fi
 

@@ -95,6 +95,26 @@ else
   fail "vispack-slurm chain failed"
 fi
 
+# 2b. --wait reports a failed chain: a register that fails (a stand-in executable) cancels every
+# later step, and vispack-slurm --wait exits 1 saying so instead of waiting for ever.
+mkdir -p "$tmp/badbin"
+for exe in "$bin"/vispack-*; do ln -s "$exe" "$tmp/badbin/"; done
+rm "$tmp/badbin/vispack-register"
+printf '#!/bin/sh\necho "vispack-register: error: failing on purpose (slurm_test.sh)" >&2\nexit 3\n' \
+  >"$tmp/badbin/vispack-register"
+chmod +x "$tmp/badbin/vispack-register"
+cp -a "$tmp/phantom" "$tmp/bad"
+status=0
+"$root/scripts/vispack-slurm" "$tmp/bad/config.json" --shards 2 --bin "$tmp/badbin" \
+  --jobs-dir "$tmp/bad/jobs" --wait --poll 0.5 >"$tmp/bad.out" 2>&1 || status=$?
+if [[ $status == 1 ]] && grep -q "the chain failed" "$tmp/bad.out" &&
+   grep -q "CANCELLED" "$tmp/bad.out"; then
+  echo "PASS: --wait exits 1 when a step fails (the rest of the chain cancelled)"
+else
+  cat "$tmp/bad.out"
+  fail "--wait on a failing chain: exit $status (expected 1, 'the chain failed', CANCELLED)"
+fi
+
 # 3. Snakemake, locally.
 snake() {  # snake COPY [snakemake options...]
   local copy=$1
