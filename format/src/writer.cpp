@@ -381,8 +381,8 @@ std::vector<EncodedBrick> encode_level0_slab(const WriterOptions& options, std::
       const auto* src = static_cast<const std::uint16_t*>(channel_slabs[c]);
       for (int z = 0; z < nzv; ++z)
         narrow_labels(src + std::size_t(z) * plane, plane, dx,
-                      narrowed[c].data() + std::size_t(z) * plane, "encode_level0_slab",
-                      bz * e + z, stored[c].name);
+                      narrowed[c].data() + std::size_t(z) * plane, "encode_level0_slab", bz * e + z,
+                      stored[c].name);
       slabs[c] = narrowed[c].data();
     } else {
       slabs[c] = static_cast<const std::uint8_t*>(channel_slabs[c]);
