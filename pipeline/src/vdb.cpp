@@ -59,25 +59,41 @@ nlohmann::json estimate_json(const VdbLevelEstimate& e) {
 
 }  // namespace
 
+std::string vdb_part_path(const Config& config, int first, int last) {
+  const fs::path whole(config.vdb_output);
+  char range[64];
+  std::snprintf(range, sizeof range, ".slices-%04d-%04d", first, last);
+  return (whole.parent_path() / (whole.stem().string() + range + ".vdb")).string();
+}
+
 StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
   if (!config.vdb.enabled || config.vdb_output.empty())
     throw ConfigError(cat(config.path, ": vdb.enabled is false: no OpenVDB export configured"));
-  require_whole_stack(options, int(stack_slices(config).size()), "vispack-vdb");
+  const int stack = int(stack_slices(config).size());
+  SliceRange part{0, stack};
+  if (!options.slices.empty()) part = parse_slice_range(options.slices, stack);
+  const bool sharded = part.first != 0 || part.last != stack;
   if (!fs::exists(config.output))
     throw InputError(cat(config.output,
                          ": packed file missing: vispack-vdb exports the packed "
                          "file's pyramid (run vispack-pack first)"));
 
+  // Unsharded: one unit (the file) in work/vdb. A shard: its part file is unit `part.first` of
+  // work/vdb-parts (a shard's manifest records only its own part).
+  const std::string output =
+      sharded ? vdb_part_path(config, part.first, part.last) : config.vdb_output;
   Fingerprint fp;
-  fp.file(config.output).text(config.vdb_output);
+  fp.file(config.output).text(output);
+  if (sharded) fp.text(cat(part.first, ":", part.last));
   StageOptions unit = options;
-  unit.slices.clear();
-  StageRun run(config, "vdb", 1, unit, {"vdb"});
-  run.remove_stale_temporaries_of(config.vdb_output);
+  if (!sharded) unit.slices.clear();
+  StageRun run(config, sharded ? "vdb-parts" : "vdb", sharded ? stack : 1, unit, {"vdb"});
+  const int unit_index = sharded ? part.first : 0;
+  run.remove_stale_temporaries_of(output);
   const std::string input = fp.str();
-  if (run.up_to_date(0, input, {config.vdb_output})) {
-    run.skip(0);
-    return run.finish(config.vdb_output);
+  if (run.up_to_date(unit_index, input, {output})) {
+    run.skip(unit_index);
+    return run.finish(output);
   }
 
   const format::Reader reader = format::Reader::open(config.output);
@@ -86,8 +102,10 @@ StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
   const format::LevelInfo& info = reader.level(level);
   const std::string chosen = describe_vdb_choice(choice);
   if (!options.quiet)
-    std::printf("vdb: exporting %s (%s)\n", chosen.c_str(),
-                choice.automatic ? "the finest level within vdb.max_memory_mb" : "vdb.level");
+    std::printf(
+        "vdb: exporting %s (%s)%s\n", chosen.c_str(),
+        choice.automatic ? "the finest level within vdb.max_memory_mb" : "vdb.level",
+        sharded ? cat(", slices ", part.first, ":", part.last, " to ", output).c_str() : "");
   std::fflush(stdout);
 
   const int rgba = reader.channel_index("rgba");
@@ -117,9 +135,16 @@ StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
   // the body mask.
   const std::int64_t edge = reader.brick_edge();
   const auto& grid = info.bricks;
+  // The level's z range of this part: ceil(A * D / S) .. ceil(B * D / S) (the whole level when
+  // not sharded); consecutive shards meet exactly, so their parts tile the level.
+  const std::int64_t depth = info.dims[2];
+  const auto level_z = [&](int s) { return (std::int64_t(s) * depth + stack - 1) / stack; };
+  const std::int64_t z_first = sharded ? level_z(part.first) : 0;
+  const std::int64_t z_last = sharded ? level_z(part.last) : depth;
   std::vector<std::uint8_t> rgba_buf, ct_buf, label_buf;
   std::uint64_t active = 0;
-  for (std::int64_t bz = 0; bz < grid[2]; ++bz)
+  const std::int64_t bz_first = z_first / edge, bz_last = (z_last + edge - 1) / edge;
+  for (std::int64_t bz = bz_first; bz < bz_last; ++bz)
     for (std::int64_t by = 0; by < grid[1]; ++by)
       for (std::int64_t bx = 0; bx < grid[0]; ++bx) {
         const format::BrickInfo& rb = reader.brick(rgba, level, bx, by, bz);
@@ -134,8 +159,9 @@ StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
                 : nullptr;
         const std::int64_t nx = std::min(edge, info.dims[0] - bx * edge);
         const std::int64_t ny = std::min(edge, info.dims[1] - by * edge);
-        const std::int64_t nz = std::min(edge, info.dims[2] - bz * edge);
-        for (std::int64_t z = 0; z < nz; ++z)
+        const std::int64_t z_begin = std::max<std::int64_t>(0, z_first - bz * edge);
+        const std::int64_t nz = std::min(edge, z_last - bz * edge);
+        for (std::int64_t z = z_begin; z < nz; ++z)
           for (std::int64_t y = 0; y < ny; ++y)
             for (std::int64_t x = 0; x < nx; ++x) {
               const std::size_t v = std::size_t((z * edge + y) * edge + x);
@@ -170,6 +196,11 @@ StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
                   openvdb::Vec3DMetadata(
                       openvdb::Vec3d(info.origin_mm[0], info.origin_mm[1], info.origin_mm[2])));
   meta.insertMeta("vispack_source", openvdb::StringMetadata(fs::path(config.output).filename()));
+  if (sharded) {
+    meta.insertMeta("vispack_part_slices",
+                    openvdb::StringMetadata(cat(part.first, ":", part.last)));
+    meta.insertMeta("vispack_part_z", openvdb::StringMetadata(cat(z_first, ":", z_last)));
+  }
   openvdb::GridPtrVec grids;
   auto name_grid = [&](openvdb::GridBase::Ptr g, const char* name, const char* units) {
     g->setName(name);
@@ -183,21 +214,25 @@ StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
   name_grid(rgb_grid, "rgb", "rgb01");
   const std::uint64_t leaves = rgb_grid->tree().leafCount();
 
-  make_directories(fs::path(config.vdb_output).parent_path().string());
+  make_directories(fs::path(output).parent_path().string());
   // OpenVDB writes by path: it writes the AtomicFile's temporary, which commit() then fsyncs and
   // renames into place (removed on any failure).
-  AtomicFile out(config.vdb_output);
+  AtomicFile out(output);
   try {
     openvdb::io::File file(out.temp_path());
     file.write(grids, meta);  // default compression: Blosc if available, else zip
     file.close();
   } catch (const openvdb::Exception& e) {
-    throw IoError(cat(config.vdb_output, ": cannot write: ", e.what()));
+    throw IoError(cat(output, ": cannot write: ", e.what()));
   }
   out.commit();
-  run.done(0, input, {config.vdb_output}, reader.file_size());
-  run.set_report("output", config.vdb_output);
-  run.set_report("output_bytes", std::uint64_t(fs::file_size(config.vdb_output)));
+  run.done(unit_index, input, {output}, reader.file_size());
+  run.set_report("output", output);
+  run.set_report("output_bytes", std::uint64_t(fs::file_size(output)));
+  if (sharded) {
+    run.set_report("part_slices", {part.first, part.last});
+    run.set_report("part_z", {z_first, z_last});
+  }
   nlohmann::json names = nlohmann::json::array();
   for (const auto& g : grids)
     names.push_back(g->getName());
@@ -214,7 +249,7 @@ StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
   run.set_report("peak_rss_mb", peak_rss_mb());
   run.set_quality("active_voxels", active);
   run.set_quality("leaves", leaves);
-  return run.finish(config.vdb_output);
+  return run.finish(output);
 }
 
 }  // namespace vispack::pipeline

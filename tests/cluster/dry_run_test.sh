@@ -25,7 +25,7 @@ expected="01-register-measure.sh 02-register-solve.sh 03-slices.sh 04-pack.sh 05
 [[ $names == "$expected" ]] || fail "jobs: '$names', expected '$expected'"
 [[ $(grep -c '^### sbatch --parsable --kill-on-invalid-dep=yes --dependency=afterok:<' "$tmp/dry.out") == 5 ]] ||
   fail "every job but the first must depend on the previous one with afterok"
-[[ $(grep -c '^#SBATCH --array=0-2$' "$tmp/dry.out") == 3 ]] || fail "3 sharded jobs (measure, per-slice stages, pack) with --array=0-2"
+[[ $(grep -c '^#SBATCH --array=0-2$' "$tmp/dry.out") == 4 ]] || fail "4 sharded jobs (measure, per-slice stages, pack, vdb) with --array=0-2"
 [[ $(grep -c '^#SBATCH --partition=short$' "$tmp/dry.out") == 6 ]] || fail "--partition in every job"
 grep -q 'sacct' "$tmp/dry.out" && fail "the job scripts must not use sacct"
 
@@ -48,6 +48,11 @@ if SLURM_ARRAY_TASK_ID=3 bash "$tmp/run/04.sh" 2>/dev/null; then fail "task 3 of
 cmp "$tmp/local/out/volume.vpk" "$tmp/my dir/out/volume.vpk" ||
   fail "the job chain's packed file differs from the local run"
 ls "$tmp/my dir/work/pack-slabs/"slab_000{0,1,2}.vpkslab >/dev/null || fail "no slab files: pack did not shard"
+# The OpenVDB export in three parts, one per shard, and no whole file.
+parts=$(cd "$tmp/my dir/out" && ls -- *.slices-*.vdb 2>/dev/null | tr '\n' ' ')
+[[ $parts == "volume.slices-0000-0008.vdb volume.slices-0008-0016.vdb volume.slices-0016-0024.vdb " ]] ||
+  fail "OpenVDB parts: '$parts'"
+[[ ! -e "$tmp/my dir/out/volume.vdb" ]] || fail "a sharded vdb step wrote the whole file too"
 
 # Usage errors: one line, exit 2 (3 for a missing config).
 set +e

@@ -4,9 +4,11 @@
 // size of the packed file's level; an explicit vdb.level over the budget is a ConfigError.
 #include <gtest/gtest.h>
 
+#include <array>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <map>
 
 #include <openvdb/openvdb.h>
 
@@ -24,14 +26,24 @@
 using namespace vispack;
 using namespace vispack::pipeline;
 using namespace vispack::phantom;
+namespace fs = std::filesystem;
 
-TEST(Vdb, GridsValuesAndVdbPrint) {
-  test::TempDir dir;
+namespace {
+
+// The tiny phantom (96 x 64 x 24) the export tests run on.
+void make_tiny_phantom(const std::string& dir) {
   PhantomOptions po;
   po.preset = "tiny";
   po.seed = 6;
   po.quiet = true;
-  make_phantom(dir.path(), po);
+  make_phantom(dir, po);
+}
+
+}  // namespace
+
+TEST(Vdb, GridsValuesAndVdbPrint) {
+  test::TempDir dir;
+  make_tiny_phantom(dir.path());
   {
     // The full-size registered colour and resampled CT are compared below as the register and
     // mask stages write them (work.write_registered / write_ct; off by default): the stages
@@ -109,12 +121,107 @@ TEST(Vdb, GridsValuesAndVdbPrint) {
   EXPECT_EQ(wrong_ct, 0u);
   EXPECT_EQ(wrong_labels, 0u);
   EXPECT_EQ(wrong_rgb, 0u);
-  // Command line: a shard is refused with a usage error.
+  // Command line: a range that is not one is a usage error.
   EXPECT_EQ(
       test::run_command(
-          test::bin("vispack-vdb") + " --config " + dir / "config.json" + " --slices 0:5", &out),
+          test::bin("vispack-vdb") + " --config " + dir / "config.json" + " --slices 5:2", &out),
       2)
       << out;
+}
+
+namespace {
+
+// Every active voxel of `grid` with its value, by coordinate.
+template <class GridT>
+std::map<std::array<int, 3>, typename GridT::ValueType> active_voxels(const GridT& grid) {
+  std::map<std::array<int, 3>, typename GridT::ValueType> out;
+  for (auto it = grid.cbeginValueOn(); it; ++it) {
+    if (!it.isVoxelValue()) {
+      ADD_FAILURE() << "a tile in the exported grid (the export sets voxels only)";
+      continue;
+    }
+    const openvdb::Coord c = it.getCoord();
+    out[{c.x(), c.y(), c.z()}] = *it;
+  }
+  return out;
+}
+
+template <class GridT>
+typename GridT::Ptr read_grid(const std::string& path, const std::string& name) {
+  openvdb::io::File file(path);
+  file.open();
+  auto grid = openvdb::gridPtrCast<GridT>(file.readGrid(name));
+  file.close();
+  return grid;
+}
+
+}  // namespace
+
+// Shards (--slices A:B) export parts that tile the unsharded export exactly, at level 0 and at
+// a coarser level whose z boundaries fall inside bricks and between slices (24 slices: shards
+// 0:7, 7:16, 16:24 at level 1 cover level z [0, 4), [4, 8), [8, 12)); each part is named for its
+// slices, says its ranges, and resumes on its own.
+TEST(Vdb, ShardsTileTheWholeExport) {
+  test::TempDir dir;
+  make_tiny_phantom(dir.path());
+  for (int level : {0, 1}) {
+    SCOPED_TRACE("level " + std::to_string(level));
+    auto j = nlohmann::json::parse(read_file(dir / "config.json"));
+    j["vdb"]["level"] = level;
+    write_file_atomic(dir / "config.json", j.dump());
+    Config config = load_config(dir / "config.json");
+    RunOptions options;
+    options.quiet = true;
+    options.force = level == 1;
+    run_pipeline(config, options);
+    openvdb::initialize();
+    const auto whole_rgb = active_voxels(*read_grid<openvdb::Vec3SGrid>(config.vdb_output, "rgb"));
+    const auto whole_ct = active_voxels(*read_grid<openvdb::FloatGrid>(config.vdb_output, "ct"));
+    const auto whole_labels =
+        active_voxels(*read_grid<openvdb::Int32Grid>(config.vdb_output, "labels"));
+    ASSERT_GT(whole_rgb.size(), 500u);
+
+    std::map<std::array<int, 3>, openvdb::Vec3s> parts_rgb;
+    std::map<std::array<int, 3>, float> parts_ct;
+    std::map<std::array<int, 3>, int> parts_labels;
+    std::size_t part_voxels = 0;
+    const std::vector<std::pair<int, int>> shards = {{0, 7}, {7, 16}, {16, 24}};
+    for (const auto& [a, b] : shards) {
+      StageOptions so;
+      so.quiet = true;
+      so.slices = std::to_string(a) + ":" + std::to_string(b);
+      StageResult r = run_vdb_stage(config, so);
+      EXPECT_EQ(r.processed, 1);
+      const std::string path = vdb_part_path(config, a, b);
+      EXPECT_EQ(r.output, path);
+      EXPECT_EQ(fs::path(path).filename().string(),
+                fs::path(config.vdb_output).stem().string() + ".slices-" + (a < 10 ? "000" : "00") +
+                    std::to_string(a) + "-00" + (b < 10 ? "0" : "") + std::to_string(b) + ".vdb");
+      auto rgb = read_grid<openvdb::Vec3SGrid>(path, "rgb");
+      ASSERT_TRUE(rgb);
+      EXPECT_EQ(rgb->metaValue<std::string>("vispack_part_slices"),
+                std::to_string(a) + ":" + std::to_string(b));
+      const int div = 1 << level;
+      const int z0 = (a + div - 1) / div, z1 = (b + div - 1) / div;
+      EXPECT_EQ(rgb->metaValue<std::string>("vispack_part_z"),
+                std::to_string(z0) + ":" + std::to_string(z1));
+      for (const auto& [c, v] : active_voxels(*rgb)) {
+        EXPECT_TRUE(c[2] >= z0 && c[2] < z1) << "voxel z " << c[2] << " outside the part";
+        EXPECT_TRUE(parts_rgb.emplace(c, v).second) << "voxel in two parts";
+        ++part_voxels;
+      }
+      for (const auto& [c, v] : active_voxels(*read_grid<openvdb::FloatGrid>(path, "ct")))
+        parts_ct.emplace(c, v);
+      for (const auto& [c, v] : active_voxels(*read_grid<openvdb::Int32Grid>(path, "labels")))
+        parts_labels.emplace(c, v);
+      // Up to date on a rerun; the part file alone was written (vdb_output untouched).
+      EXPECT_EQ(run_vdb_stage(config, so).processed, 0);
+    }
+    EXPECT_EQ(part_voxels, whole_rgb.size());
+    EXPECT_TRUE(parts_rgb == whole_rgb) << "the parts' colour differs from the whole export";
+    EXPECT_TRUE(parts_ct == whole_ct) << "the parts' CT differs from the whole export";
+    EXPECT_TRUE(parts_labels == whole_labels) << "the parts' labels differ from the whole export";
+  }
 }
 
 namespace {

@@ -18,9 +18,16 @@
 // say the level, its estimate and the budget.
 // The file is written with io::File's default compression (Blosc when OpenVDB has it, else zip)
 // to a temporary name and renamed: config.vdb_output appears complete or not at all.
-// Not sharded (`--slices` with a partial range is a UsageError): one .vdb file holds whole grids
-// that openvdb::io::File::write takes from memory. On a cluster it is one job after the pack merge
-// (scripts/vispack-slurm, workflow/Snakefile). Needs vdb.enabled.
+// Shards (`--slices A:B`, a part of the stack): the part of the chosen level whose z lies in
+// [ceil(A * D / S), ceil(B * D / S)) (D = the level's slice count, S = the stack's), written to
+// vdb_part_path(config, A, B) ("<vdb_output stem>.slices-AAAA-BBBB.vdb" beside vdb_output)
+// instead of vdb_output, with the same grids, transform and metadata plus "vispack_part_slices"
+// ("A:B") and "vispack_part_z" (the level z range, "z0:z1"). The parts of any set of shards that
+// tile the stack are disjoint and hold together exactly the voxels of the unsharded export (each
+// grid of one part merges into the same grid of another: tree().merge()). Every shard chooses
+// the same level (the choice reads the whole packed file). Resume per part: work/vdb-parts. On a
+// cluster the parts run as one array job after the pack merge (scripts/vispack-slurm); the
+// unsharded export (vispack-run, workflow/Snakefile) writes vdb_output. Needs vdb.enabled.
 // Memory: bounded by vdb.max_memory_mb (measured against the estimate in docs/BENCHMARKS.md).
 #pragma once
 
@@ -33,5 +40,9 @@ namespace vispack::pipeline {
 // over the budget; no level fits the budget), InputError (packed file missing, no rgba channel),
 // FormatError (packed file defective), IoError.
 StageResult run_vdb_stage(const Config& config, const StageOptions& options);
+
+// The file a shard [first, last) of the stack is exported to: "<dir>/<stem>.slices-FFFF-LLLL.vdb"
+// for vdb_output "<dir>/<stem>.vdb" (4 digits at least, zero-padded).
+std::string vdb_part_path(const Config& config, int first, int last);
 
 }  // namespace vispack::pipeline
