@@ -43,16 +43,6 @@ std::string utc_now() {
 
 }  // namespace
 
-void require_whole_stack(const StageOptions& options, int slice_count, const std::string& program) {
-  if (options.slices.empty()) return;
-  SliceRange range = parse_slice_range(options.slices, slice_count);
-  if (range.first != 0 || range.last != slice_count) {
-    throw UsageError(cat(program,
-                         " does not shard: its output is one file written as one stream; "
-                         "run it without --slices"));
-  }
-}
-
 namespace {
 
 // The final path a temporary file stands for ("x.png.tmp-123-4" -> "x.png"), or "" if `name` is

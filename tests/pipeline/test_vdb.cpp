@@ -9,6 +9,7 @@
 #include <cstring>
 #include <filesystem>
 #include <map>
+#include <tuple>
 
 #include <openvdb/openvdb.h>
 
@@ -185,8 +186,9 @@ TEST(Vdb, ShardsTileTheWholeExport) {
     std::map<std::array<int, 3>, float> parts_ct;
     std::map<std::array<int, 3>, int> parts_labels;
     std::size_t part_voxels = 0;
-    const std::vector<std::pair<int, int>> shards = {{0, 7}, {7, 16}, {16, 24}};
-    for (const auto& [a, b] : shards) {
+    const std::vector<std::tuple<int, int, std::string>> shards = {
+        {0, 7, "0000-0007"}, {7, 16, "0007-0016"}, {16, 24, "0016-0024"}};
+    for (const auto& [a, b, digits] : shards) {
       StageOptions so;
       so.quiet = true;
       so.slices = std::to_string(a) + ":" + std::to_string(b);
@@ -195,8 +197,7 @@ TEST(Vdb, ShardsTileTheWholeExport) {
       const std::string path = vdb_part_path(config, a, b);
       EXPECT_EQ(r.output, path);
       EXPECT_EQ(fs::path(path).filename().string(),
-                fs::path(config.vdb_output).stem().string() + ".slices-" + (a < 10 ? "000" : "00") +
-                    std::to_string(a) + "-00" + (b < 10 ? "0" : "") + std::to_string(b) + ".vdb");
+                fs::path(config.vdb_output).stem().string() + ".slices-" + digits + ".vdb");
       auto rgb = read_grid<openvdb::Vec3SGrid>(path, "rgb");
       ASSERT_TRUE(rgb);
       EXPECT_EQ(rgb->metaValue<std::string>("vispack_part_slices"),

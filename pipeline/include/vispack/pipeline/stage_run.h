@@ -82,10 +82,6 @@ struct StageResult {
   bool up_to_date() const { return processed == 0; }
 };
 
-// Throws UsageError when options.slices asks for less than the whole stack: for stages whose
-// output is one file written as one stream (pack, vdb). `program` names the executable.
-void require_whole_stack(const StageOptions& options, int slice_count, const std::string& program);
-
 // ---- StageRun ----
 
 class StageRun {
