@@ -73,6 +73,10 @@ void write_image_file(const std::string& path, const ImageView& image,
   }
   if (format == "png") {
     spec.attribute("png:compressionLevel", options.png_level);
+    if (options.png_fast) {
+      spec.attribute("png:filter", 32);      // PNG_FILTER_UP
+      spec.attribute("compression", "rle");  // Z_RLE
+    }
   } else if (format == "tiff") {
     spec.attribute("compression", "zip");
     // No DateTime tag (OpenImageIO stamps the current time otherwise): the same image gives the

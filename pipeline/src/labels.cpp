@@ -221,15 +221,23 @@ cv::Mat map_colours(const cv::Mat& seg_in, const ColourMatcher& matcher, bool st
   // Cache of the non-exact colours of this slice (JPEG noise repeats the same few colours).
   std::unordered_map<std::uint32_t, ColourMatcher::Match> cache;
   std::vector<cv::Point> unsure;
+  // Segmentation slices are runs of one colour: the previous pixel's match is reused while the
+  // colour repeats (the cache's entries never move, so the pointer stays valid).
+  std::uint32_t previous_key = 0xffffffffu;  // no colour packs to this
+  const ColourMatcher::Match* previous = nullptr;
   for (int y = 0; y < seg.rows; ++y) {
     const cv::Vec3b* row = seg.ptr<cv::Vec3b>(y);
     std::uint16_t* o = out.ptr<std::uint16_t>(y);
     for (int x = 0; x < seg.cols; ++x) {
       const cv::Vec3b& p = row[x];
-      std::uint32_t key = pack_rgb(p[0], p[1], p[2]);
-      auto it = cache.find(key);
-      if (it == cache.end()) it = cache.emplace(key, matcher.match(p[0], p[1], p[2])).first;
-      const auto& m = it->second;
+      const std::uint32_t key = pack_rgb(p[0], p[1], p[2]);
+      if (key != previous_key) {
+        auto it = cache.find(key);
+        if (it == cache.end()) it = cache.emplace(key, matcher.match(p[0], p[1], p[2])).first;
+        previous_key = key;
+        previous = &it->second;
+      }
+      const auto& m = *previous;
       o[x] = m.id;
       if (m.exact) {
         ++local.exact;
@@ -328,11 +336,19 @@ cv::Mat resample_labels_nearest(const cv::Mat& labels, const SliceTransform& t,
   CV_Assert(labels.type() == CV_16UC1);
   cv::Matx23d m = rigid_matrix(t.rigid, {center_px[0], center_px[1]});
   cv::Mat out(out_size, CV_16UC1, cv::Scalar(0));
+  // The products with x are computed once per column; the sums keep the order (and so the
+  // rounding) of m(0, 0) * x + m(0, 1) * y + m(0, 2).
+  std::vector<double> m00_x(std::size_t(out_size.width)), m10_x(std::size_t(out_size.width));
+  for (int x = 0; x < out_size.width; ++x) {
+    m00_x[std::size_t(x)] = m(0, 0) * x;
+    m10_x[std::size_t(x)] = m(1, 0) * x;
+  }
   for (int y = 0; y < out_size.height; ++y) {
     std::uint16_t* o = out.ptr<std::uint16_t>(y);
+    const double m01_y = m(0, 1) * y, m11_y = m(1, 1) * y;
     for (int x = 0; x < out_size.width; ++x) {
-      double px = m(0, 0) * x + m(0, 1) * y + m(0, 2);
-      double py = m(1, 0) * x + m(1, 1) * y + m(1, 2);
+      const double px = m00_x[std::size_t(x)] + m01_y + m(0, 2);
+      const double py = m10_x[std::size_t(x)] + m11_y + m(1, 2);
       // A tiny bias keeps exact half-pixel positions stable against rounding noise of the matrix.
       int ix = int(std::floor(px + 0.5 + 1e-9)), iy = int(std::floor(py + 0.5 + 1e-9));
       if (ix >= 0 && iy >= 0 && ix < labels.cols && iy < labels.rows)
@@ -429,14 +445,16 @@ cv::Mat LabelsStageJob::compute(int k) {
                                                  seg.strict, path, &stats);
     out = have_transforms_ ? resample_labels_nearest(ids, t, center, out_size) : ids;
   }
-  std::set<std::uint16_t> ids_here;
+  std::vector<std::uint8_t> id_seen(65536, 0);  // indexed by label ID
   for (int y = 0; y < out.rows; ++y) {
     const std::uint16_t* row = out.ptr<std::uint16_t>(y);
-    std::uint16_t last = 0;
     for (int x = 0; x < out.cols; ++x)
-      if (row[x] != last && row[x] != 0) ids_here.insert(last = row[x]);
+      id_seen[row[x]] = 1;
   }
-  write_image(out_path, out, 90, kWorkPngLevel);
+  std::vector<std::uint16_t> ids_here;
+  for (std::size_t id = 1; id < id_seen.size(); ++id)
+    if (id_seen[id]) ids_here.push_back(std::uint16_t(id));
+  write_work_image(out_path, out);
   {
     std::lock_guard<std::mutex> lock(mutex_);
     for (const auto& u : stats.first_unmatched)

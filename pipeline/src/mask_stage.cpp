@@ -98,12 +98,12 @@ cv::Mat MaskStageJob::compute(int k, const cv::Mat& rgb, const CtSlice& ct, cv::
   compute_ns_ +=
       std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - t0)
           .count();
-  write_image(outs[0], m.mask, 90, kWorkPngLevel);
-  write_image(outs[1], fit_overlay(draw_mask_overlay(rgb, m.mask), config_.work.overlay_max_px), 90,
-              kWorkPngLevel);
+  write_work_image(outs[0], m.mask);
+  write_work_image(outs[1],
+                   fit_overlay(draw_mask_overlay(rgb, m.mask), config_.work.overlay_max_px));
   if (write_ct || (ct16 && config_.ct)) {
     cv::Mat resampled = resampled_ct16(config_, inputs_, k, &ct);
-    if (write_ct) write_image(outs[2], resampled, 90, kWorkPngLevel);
+    if (write_ct) write_work_image(outs[2], resampled);
     if (ct16) *ct16 = resampled;
   }
   coverage_[std::size_t(k - run_.range().first)] = m.coverage;

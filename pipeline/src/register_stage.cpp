@@ -395,16 +395,16 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
         // The overlay warped from the kept picture: the same slice, transform and outline as
         // below, without decoding and warping the full-size slice again.
         const cv::Mat registered_small = warp_picture(kept, t.rigid, inputs.size());
-        write_image(overlay,
-                    draw_ct_overlay(registered_small, hu, ct_to_rgb, config.mask.hu_threshold,
-                                    kOverlayEdge, inputs.size()));
+        write_work_image(overlay,
+                         draw_ct_overlay(registered_small, hu, ct_to_rgb, config.mask.hu_threshold,
+                                         kOverlayEdge, inputs.size()));
         run.done(k, in, outs, 0);
         return;
       }
       const cv::Mat registered = registered_colour(config, inputs, k);
-      if (write_registered) write_image(out, registered);
-      write_image(overlay, draw_ct_overlay(registered, hu, ct_to_rgb, config.mask.hu_threshold,
-                                           kOverlayEdge));
+      if (write_registered) write_work_image(out, registered);
+      write_work_image(overlay, draw_ct_overlay(registered, hu, ct_to_rgb, config.mask.hu_threshold,
+                                                kOverlayEdge));
       run.done(k, in, outs, registered.total() * registered.elemSize());
     });
   }

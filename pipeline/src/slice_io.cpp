@@ -264,7 +264,9 @@ cv::Size read_slice_size(const std::string& path, const std::optional<RawLayout>
   return size;
 }
 
-void write_image(const std::string& path, const cv::Mat& image, int jpeg_quality, int png_level) {
+namespace {
+
+ImageView view_of(const std::string& path, const cv::Mat& image) {
   if (image.empty() || image.dims != 2) throw IoError(cat(path, ": cannot write an empty image"));
   const int depth = image.depth();
   if (depth != CV_8U && depth != CV_16U) {
@@ -278,10 +280,23 @@ void write_image(const std::string& path, const cv::Mat& image, int jpeg_quality
   view.bits = depth == CV_8U ? 8 : 16;
   view.pixels = image.data;
   view.row_bytes = image.step[0];
+  return view;
+}
+
+}  // namespace
+
+void write_work_image(const std::string& path, const cv::Mat& image) {
+  ImageWriteOptions options;
+  options.png_level = 1;
+  options.png_fast = true;
+  write_image_file(path, view_of(path, image), options);
+}
+
+void write_image(const std::string& path, const cv::Mat& image, int jpeg_quality, int png_level) {
   ImageWriteOptions options;
   options.jpeg_quality = jpeg_quality;
   options.png_level = png_level;
-  write_image_file(path, view, options);
+  write_image_file(path, view_of(path, image), options);
 }
 
 void write_raw_slice(const std::string& path, const cv::Mat& image, const RawLayout& layout) {

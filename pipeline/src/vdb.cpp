@@ -2,6 +2,8 @@
 
 #include <sys/resource.h>
 
+#include <algorithm>
+#include <array>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -115,24 +117,15 @@ StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
                                              format::ChannelType::kUint16;
 
   openvdb::initialize();
-  auto ct_grid = openvdb::FloatGrid::create(-1024.0f);
-  auto label_grid = openvdb::Int32Grid::create(0);
-  auto rgb_grid = openvdb::Vec3SGrid::create(openvdb::Vec3s(0, 0, 0));
   // Index (i, j, k) of the level has its centre at origin_mm + (i, j, k) * spacing_mm.
   openvdb::math::Mat4d scale = openvdb::math::Mat4d::identity();
   scale.setToScale(openvdb::Vec3d(info.spacing_mm[0], info.spacing_mm[1], info.spacing_mm[2]));
   auto xform = openvdb::math::Transform::createLinearTransform(scale);
   xform->postTranslate(openvdb::Vec3d(info.origin_mm[0], info.origin_mm[1], info.origin_mm[2]));
-  ct_grid->setTransform(xform);
-  label_grid->setTransform(xform->copy());
-  rgb_grid->setTransform(xform->copy());
-  auto ct_acc = ct_grid->getAccessor();
-  auto label_acc = label_grid->getAccessor();
-  auto rgb_acc = rgb_grid->getAccessor();
 
-  // Brick by brick in index order (OpenVDB trees are written from one thread); a voxel is active
-  // where the packed alpha (body coverage) is > 0: at level 0 of an undownsampled file exactly
-  // the body mask.
+  // The bricks of this part that hold body (packed alpha > 0 somewhere), in index order; a voxel
+  // is active where the packed alpha (body coverage) is > 0: at level 0 of an undownsampled file
+  // exactly the body mask.
   const std::int64_t edge = reader.brick_edge();
   const auto& grid = info.bricks;
   // The level's z range of this part: ceil(A * D / S) .. ceil(B * D / S) (the whole level when
@@ -141,47 +134,85 @@ StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
   const auto level_z = [&](int s) { return (std::int64_t(s) * depth + stack - 1) / stack; };
   const std::int64_t z_first = sharded ? level_z(part.first) : 0;
   const std::int64_t z_last = sharded ? level_z(part.last) : depth;
-  std::vector<std::uint8_t> rgba_buf, ct_buf, label_buf;
-  std::uint64_t active = 0;
   const std::int64_t bz_first = z_first / edge, bz_last = (z_last + edge - 1) / edge;
+  std::vector<std::array<std::int64_t, 3>> body_bricks;
   for (std::int64_t bz = bz_first; bz < bz_last; ++bz)
     for (std::int64_t by = 0; by < grid[1]; ++by)
-      for (std::int64_t bx = 0; bx < grid[0]; ++bx) {
-        const format::BrickInfo& rb = reader.brick(rgba, level, bx, by, bz);
-        if (rb.max[3] == 0) continue;
-        const std::uint8_t* c = brick_voxels(reader, rb, rgba_buf);
-        const std::uint8_t* h =
-            ct_channel ? brick_voxels(reader, reader.brick(*ct_channel, level, bx, by, bz), ct_buf)
-                       : nullptr;
-        const std::uint8_t* l =
-            label_channel
-                ? brick_voxels(reader, reader.brick(*label_channel, level, bx, by, bz), label_buf)
-                : nullptr;
-        const std::int64_t nx = std::min(edge, info.dims[0] - bx * edge);
-        const std::int64_t ny = std::min(edge, info.dims[1] - by * edge);
-        const std::int64_t z_begin = std::max<std::int64_t>(0, z_first - bz * edge);
-        const std::int64_t nz = std::min(edge, z_last - bz * edge);
-        for (std::int64_t z = z_begin; z < nz; ++z)
-          for (std::int64_t y = 0; y < ny; ++y)
-            for (std::int64_t x = 0; x < nx; ++x) {
-              const std::size_t v = std::size_t((z * edge + y) * edge + x);
-              const std::uint8_t* px = c + 4 * v;
-              if (px[3] == 0) continue;
-              const openvdb::Coord ijk(int(bx * edge + x), int(by * edge + y), int(bz * edge + z));
-              rgb_acc.setValue(ijk, openvdb::Vec3s(px[0] / 255.0f, px[1] / 255.0f, px[2] / 255.0f));
-              if (h) {
-                std::int16_t hu;
-                std::memcpy(&hu, h + 2 * v, 2);
-                ct_acc.setValue(ijk, float(hu));
-              }
-              if (l) {
-                std::uint16_t id = l[v];
-                if (labels16) std::memcpy(&id, l + 2 * v, 2);
-                label_acc.setValue(ijk, int(id));
-              }
-              ++active;
+      for (std::int64_t bx = 0; bx < grid[0]; ++bx)
+        if (reader.brick(rgba, level, bx, by, bz).max[3] != 0) body_bricks.push_back({bx, by, bz});
+
+  // The grids are built on run.threads() threads, each from a contiguous run of those bricks
+  // into grids of its own, then merged in order (OpenVDB trees take values from one thread). The
+  // runs' leaves (8^3 voxels) are disjoint when the brick edge is a multiple of 8, so the merge
+  // only moves nodes and the trees equal a one-thread build; other edges build on one thread.
+  struct Part {
+    openvdb::FloatGrid::Ptr ct = openvdb::FloatGrid::create(-1024.0f);
+    openvdb::Int32Grid::Ptr labels = openvdb::Int32Grid::create(0);
+    openvdb::Vec3SGrid::Ptr rgb = openvdb::Vec3SGrid::create(openvdb::Vec3s(0, 0, 0));
+    std::uint64_t active = 0;
+  };
+  const int workers =
+      int(std::clamp<std::int64_t>(edge % 8 == 0 ? run.threads() : 1, 1,
+                                   std::max<std::int64_t>(1, std::int64_t(body_bricks.size()))));
+  std::vector<Part> parts(static_cast<std::size_t>(workers));
+  parallel_for(workers, workers, [&](std::int64_t w) {
+    Part& out = parts[std::size_t(w)];
+    auto ct_acc = out.ct->getAccessor();
+    auto label_acc = out.labels->getAccessor();
+    auto rgb_acc = out.rgb->getAccessor();
+    std::vector<std::uint8_t> rgba_buf, ct_buf, label_buf;
+    const std::size_t n = body_bricks.size();
+    for (std::size_t i = n * std::size_t(w) / std::size_t(workers);
+         i < n * std::size_t(w + 1) / std::size_t(workers); ++i) {
+      const auto [bx, by, bz] = body_bricks[i];
+      const std::uint8_t* c = brick_voxels(reader, reader.brick(rgba, level, bx, by, bz), rgba_buf);
+      const std::uint8_t* h =
+          ct_channel ? brick_voxels(reader, reader.brick(*ct_channel, level, bx, by, bz), ct_buf)
+                     : nullptr;
+      const std::uint8_t* l =
+          label_channel
+              ? brick_voxels(reader, reader.brick(*label_channel, level, bx, by, bz), label_buf)
+              : nullptr;
+      const std::int64_t nx = std::min(edge, info.dims[0] - bx * edge);
+      const std::int64_t ny = std::min(edge, info.dims[1] - by * edge);
+      const std::int64_t z_begin = std::max<std::int64_t>(0, z_first - bz * edge);
+      const std::int64_t nz = std::min(edge, z_last - bz * edge);
+      for (std::int64_t z = z_begin; z < nz; ++z)
+        for (std::int64_t y = 0; y < ny; ++y)
+          for (std::int64_t x = 0; x < nx; ++x) {
+            const std::size_t v = std::size_t((z * edge + y) * edge + x);
+            const std::uint8_t* px = c + 4 * v;
+            if (px[3] == 0) continue;
+            const openvdb::Coord ijk(int(bx * edge + x), int(by * edge + y), int(bz * edge + z));
+            rgb_acc.setValue(ijk, openvdb::Vec3s(px[0] / 255.0f, px[1] / 255.0f, px[2] / 255.0f));
+            if (h) {
+              std::int16_t hu;
+              std::memcpy(&hu, h + 2 * v, 2);
+              ct_acc.setValue(ijk, float(hu));
             }
-      }
+            if (l) {
+              std::uint16_t id = l[v];
+              if (labels16) std::memcpy(&id, l + 2 * v, 2);
+              label_acc.setValue(ijk, int(id));
+            }
+            ++out.active;
+          }
+    }
+  });
+  openvdb::FloatGrid::Ptr ct_grid = parts[0].ct;
+  openvdb::Int32Grid::Ptr label_grid = parts[0].labels;
+  openvdb::Vec3SGrid::Ptr rgb_grid = parts[0].rgb;
+  std::uint64_t active = parts[0].active;
+  for (std::size_t w = 1; w < parts.size(); ++w) {
+    ct_grid->tree().merge(parts[w].ct->tree(), openvdb::MERGE_ACTIVE_STATES);
+    label_grid->tree().merge(parts[w].labels->tree(), openvdb::MERGE_ACTIVE_STATES);
+    rgb_grid->tree().merge(parts[w].rgb->tree(), openvdb::MERGE_ACTIVE_STATES);
+    active += parts[w].active;
+  }
+  parts.resize(1);
+  ct_grid->setTransform(xform);
+  label_grid->setTransform(xform->copy());
+  rgb_grid->setTransform(xform->copy());
 
   // Said in the file (per grid and for the file), the report and the stdout line above.
   openvdb::MetaMap meta;

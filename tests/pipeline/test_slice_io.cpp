@@ -9,6 +9,7 @@
 #include <thread>
 
 #include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "test_support.h"
 #include "vispack/common/atomic_file.h"
@@ -128,6 +129,29 @@ TEST(SliceIo, WriteIsDeterministic) {
       EXPECT_TRUE(equal(vp::read_slice(dir / ("a" + ext)), src));  // lossless
     }
   }
+}
+
+// Work-folder images (write_work_image: Up filter, run-length zlib) are lossless and
+// deterministic, and a mask-like image comes out clearly smaller than with the default PNG
+// encoding at the same zlib level (0.58x here; 8 kB against 20 kB for a 2048x1216 body mask).
+TEST(SliceIo, WorkImagesAreLosslessAndSmallForMasks) {
+  TempDir dir;
+  for (int type : {CV_8UC1, CV_16UC1, CV_8UC3, CV_16UC3}) {
+    const cv::Mat image = make_image(53, 31, type);
+    vp::write_work_image(dir / "w.png", image);
+    EXPECT_TRUE(equal(vp::read_slice(dir / "w.png"), image)) << "type " << type;
+    vp::write_work_image(dir / "w2.png", image);
+    EXPECT_EQ(read_bytes(dir / "w.png"), read_bytes(dir / "w2.png")) << "type " << type;
+  }
+  cv::Mat mask(384, 512, CV_8UC1, cv::Scalar(0));
+  cv::ellipse(mask, {256, 192}, {200, 150}, 10.0, 0.0, 360.0, cv::Scalar(255), cv::FILLED);
+  cv::circle(mask, {300, 200}, 40, cv::Scalar(0), cv::FILLED);
+  vp::write_work_image(dir / "mask_work.png", mask);
+  vp::write_image(dir / "mask_default.png", mask, 90, 1);
+  EXPECT_TRUE(equal(vp::read_slice(dir / "mask_work.png"), mask));
+  const double work = double(read_bytes(dir / "mask_work.png").size());
+  const double plain = double(read_bytes(dir / "mask_default.png").size());
+  EXPECT_LT(work, 0.7 * plain) << work << " bytes against " << plain;
 }
 
 TEST(SliceIo, JpegIsCloseAndQualityMatters) {

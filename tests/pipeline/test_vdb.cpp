@@ -225,6 +225,46 @@ TEST(Vdb, ShardsTileTheWholeExport) {
   }
 }
 
+// The grids are built on several threads, each from a run of bricks, then merged: the trees are
+// those of a one-thread build (same active voxels and values, same leaves, same file size).
+TEST(Vdb, ThreadsBuildTheGridsOfOneThread) {
+  test::TempDir dir;
+  make_tiny_phantom(dir.path());
+  Config config = load_config(dir / "config.json");
+  RunOptions options;
+  options.quiet = true;
+  options.to = "pack";
+  run_pipeline(config, options);
+  openvdb::initialize();
+  std::map<int, std::uintmax_t> file_bytes;
+  std::map<int, openvdb::Vec3SGrid::Ptr> rgb;
+  std::map<int, openvdb::FloatGrid::Ptr> ct;
+  std::map<int, openvdb::Int32Grid::Ptr> labels;
+  for (int threads : {1, 3}) {
+    StageOptions so;
+    so.quiet = true;
+    so.force = true;
+    so.threads = threads;
+    StageResult r = run_vdb_stage(config, so);
+    ASSERT_EQ(r.processed, 1);
+    file_bytes[threads] = fs::file_size(config.vdb_output);
+    rgb[threads] = read_grid<openvdb::Vec3SGrid>(config.vdb_output, "rgb");
+    ct[threads] = read_grid<openvdb::FloatGrid>(config.vdb_output, "ct");
+    labels[threads] = read_grid<openvdb::Int32Grid>(config.vdb_output, "labels");
+    ASSERT_TRUE(rgb[threads] && ct[threads] && labels[threads]);
+  }
+  const auto one = active_voxels(*rgb[1]);
+  ASSERT_GT(one.size(), 500u);
+  EXPECT_TRUE(active_voxels(*rgb[3]) == one);
+  EXPECT_TRUE(active_voxels(*ct[3]) == active_voxels(*ct[1]));
+  EXPECT_TRUE(active_voxels(*labels[3]) == active_voxels(*labels[1]));
+  EXPECT_EQ(rgb[3]->tree().leafCount(), rgb[1]->tree().leafCount());
+  EXPECT_TRUE(rgb[3]->tree().hasSameTopology(rgb[1]->tree()));
+  EXPECT_TRUE(ct[3]->tree().hasSameTopology(ct[1]->tree()));
+  EXPECT_TRUE(labels[3]->tree().hasSameTopology(labels[1]->tree()));
+  EXPECT_EQ(file_bytes[3], file_bytes[1]);
+}
+
 namespace {
 
 double mib(double bytes) {
