@@ -312,21 +312,12 @@ StageResult StageRun::finish(const std::string& output) {
 
 // ---- stage_main ----
 
-namespace {
-
-// Stages allocate and free full-size slice buffers (2 to 10 MB at 2048x1216) for every slice.
-// With glibc's defaults each freed buffer goes back to the kernel (heap trimmed above 128 KB)
-// and the next slice faults its pages in again: 17 % of vispack-register's samples were page
-// faults. Buffers up to 32 MB stay in the heap and up to 64 MB of free heap is kept for reuse;
-// larger blocks are still mapped and unmapped. Process-wide, so set by the executable only.
 void keep_slice_buffers() {
 #ifdef __GLIBC__
   mallopt(M_MMAP_THRESHOLD, 32 << 20);
   mallopt(M_TRIM_THRESHOLD, 64 << 20);
 #endif
 }
-
-}  // namespace
 
 int stage_main(const std::string& program, int argc, char** argv, const std::string& description,
                const std::function<StageResult(const Config&, const StageOptions&)>& body) {

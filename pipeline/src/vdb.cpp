@@ -16,6 +16,7 @@
 #include "vispack/format/reader.h"
 #include "vispack/pipeline/slice_io.h"
 #include "vispack/pipeline/vdb_level.h"
+#include "vispack/pipeline/vdb_write.h"
 #include "vispack/pipeline/version.h"
 #include "vispack/pipeline/work_layout.h"
 
@@ -246,17 +247,10 @@ StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
   const std::uint64_t leaves = rgb_grid->tree().leafCount();
 
   make_directories(fs::path(output).parent_path().string());
-  // OpenVDB writes by path: it writes the AtomicFile's temporary, which commit() then fsyncs and
-  // renames into place (removed on any failure).
-  AtomicFile out(output);
-  try {
-    openvdb::io::File file(out.temp_path());
-    file.write(grids, meta);  // default compression: Blosc if available, else zip
-    file.close();
-  } catch (const openvdb::Exception& e) {
-    throw IoError(cat(output, ": cannot write: ", e.what()));
-  }
-  out.commit();
+  // Written to a temporary name and renamed into place (removed on any failure); the write
+  // system calls overlap OpenVDB's serialisation when a second thread is allowed.
+  write_vdb_grids(output, openvdb::GridCPtrVec(grids.begin(), grids.end()), meta,
+                  run.threads() > 1);
   run.done(unit_index, input, {output}, reader.file_size());
   run.set_report("output", output);
   run.set_report("output_bytes", std::uint64_t(fs::file_size(output)));

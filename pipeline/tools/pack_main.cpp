@@ -4,6 +4,7 @@
 #include "vispack/common/cli.h"
 #include "vispack/common/error.h"
 #include "vispack/pipeline/pack.h"
+#include "vispack/pipeline/stage_run.h"
 
 int main(int argc, char** argv) {
   using namespace vispack;
@@ -38,6 +39,7 @@ int main(int argc, char** argv) {
     if (merge && !options.slices.empty())
       throw UsageError("--merge takes no --slices: it builds the whole file from every shard");
     Config config = load_config(*config_path);
+    keep_slice_buffers();
     StageResult result = merge ? run_pack_merge(config, options) : run_pack_stage(config, options);
     if (!options.quiet) {
       std::cout << result.stage << ": " << result.processed << " computed, " << result.skipped

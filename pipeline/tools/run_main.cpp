@@ -4,6 +4,7 @@
 #include "vispack/common/cli.h"
 #include "vispack/common/error.h"
 #include "vispack/pipeline/run.h"
+#include "vispack/pipeline/stage_run.h"
 #include "vispack/pipeline/work_layout.h"
 
 int main(int argc, char** argv) {
@@ -47,6 +48,7 @@ int main(int argc, char** argv) {
       std::cout << "\n";
       return 0;
     }
+    pipeline::keep_slice_buffers();
     for (const auto& r : pipeline::run_pipeline(config, options)) {
       std::cout << r.stage << ": " << (r.processed ? "ran" : "up to date") << " (" << r.processed
                 << " computed, " << r.skipped << " up to date, " << r.seconds << " s) -> "

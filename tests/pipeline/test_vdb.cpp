@@ -4,8 +4,11 @@
 // size of the packed file's level; an explicit vdb.level over the budget is a ConfigError.
 #include <gtest/gtest.h>
 
+#include <sys/resource.h>
+
 #include <array>
 #include <cmath>
+#include <csignal>
 #include <cstring>
 #include <filesystem>
 #include <map>
@@ -22,6 +25,7 @@
 #include "vispack/pipeline/stage_run.h"
 #include "vispack/pipeline/vdb.h"
 #include "vispack/pipeline/vdb_level.h"
+#include "vispack/pipeline/vdb_write.h"
 #include "vispack/pipeline/work_layout.h"
 
 using namespace vispack;
@@ -263,6 +267,98 @@ TEST(Vdb, ThreadsBuildTheGridsOfOneThread) {
   EXPECT_TRUE(ct[3]->tree().hasSameTopology(ct[1]->tree()));
   EXPECT_TRUE(labels[3]->tree().hasSameTopology(labels[1]->tree()));
   EXPECT_EQ(file_bytes[3], file_bytes[1]);
+}
+
+// write_vdb_grids gives the bytes of OpenVDB's own io::File::write (all but the file's random
+// UUID), on the background thread or not, with buffers small enough that the archive's seeks
+// back to its grid offsets cross buffer boundaries; the file reads back with io::File.
+TEST(VdbWrite, BytesOfOpenVdbsFileWriter) {
+  test::TempDir dir;
+  openvdb::initialize();
+  auto ct = openvdb::FloatGrid::create(-1024.0f);
+  auto rgb = openvdb::Vec3SGrid::create(openvdb::Vec3s(0, 0, 0));
+  auto ct_acc = ct->getAccessor();
+  auto rgb_acc = rgb->getAccessor();
+  for (int z = 0; z < 40; ++z)
+    for (int y = 0; y < 50; ++y)
+      for (int x = 0; x < 60; ++x)
+        if ((x - 30) * (x - 30) + (y - 25) * (y - 25) < 400 + 10 * z) {
+          ct_acc.setValue({x, y, z}, float((x * 7 + y * 3 + z) % 1500 - 500));
+          rgb_acc.setValue({x, y, z}, openvdb::Vec3s(x / 60.0f, y / 50.0f, z / 40.0f));
+        }
+  ct->setName("ct");
+  rgb->setName("rgb");
+  openvdb::MetaMap meta;
+  meta.insertMeta("vispack_test", openvdb::StringMetadata("bytes"));
+  openvdb::GridPtrVec grids{ct, rgb};
+  const std::string reference = dir / "reference.vdb";
+  {
+    openvdb::io::File file(reference);
+    file.write(grids, meta);
+    file.close();
+  }
+  const std::string expected = read_file(reference);
+  ASSERT_GT(expected.size(), 100000u);
+  // The header: magic (8), file version (4), library version (4 + 4), grid offsets flag (1),
+  // then the 36-character UUID.
+  const std::size_t uuid = 21, uuid_end = 57;
+  for (bool background : {false, true})
+    for (std::size_t buffer : {std::size_t(4096), std::size_t(8) << 20}) {
+      SCOPED_TRACE(std::string(background ? "background" : "inline") + ", buffer " +
+                   std::to_string(buffer));
+      const std::string path = dir / "ours.vdb";
+      write_vdb_grids(path, openvdb::GridCPtrVec(grids.begin(), grids.end()), meta, background,
+                      buffer);
+      const std::string got = read_file(path);
+      ASSERT_EQ(got.size(), expected.size());
+      EXPECT_EQ(got.substr(0, uuid), expected.substr(0, uuid));
+      EXPECT_TRUE(got.compare(uuid_end, std::string::npos, expected, uuid_end) == 0)
+          << "bytes after the UUID differ";
+      EXPECT_NE(got.substr(uuid, uuid_end - uuid), expected.substr(uuid, uuid_end - uuid))
+          << "the UUID is not where this test expects it";
+      auto back = read_grid<openvdb::FloatGrid>(path, "ct");
+      ASSERT_TRUE(back);
+      EXPECT_TRUE(active_voxels(*back) == active_voxels(*ct));
+    }
+}
+
+// A write that fails (RLIMIT_FSIZE: EFBIG, as a full disk) is an IoError naming the file, on
+// the background thread too, and leaves no file behind; in a child process.
+TEST(VdbWrite, FailingWriteIsIoErrorNamingTheFile) {
+  GTEST_FLAG_SET(death_test_style, "threadsafe");
+  test::TempDir dir;
+  openvdb::initialize();
+  auto grid = openvdb::FloatGrid::create(0.0f);
+  auto acc = grid->getAccessor();
+  std::uint32_t state = 1;
+  for (int z = 0; z < 64; ++z)
+    for (int y = 0; y < 64; ++y)
+      for (int x = 0; x < 64; ++x) {
+        state = state * 1664525u + 1013904223u;  // noise: the grid does not compress away
+        acc.setValue({x, y, z}, float(state >> 8));
+      }
+  grid->setName("noise");
+  const openvdb::GridCPtrVec grids{grid};
+  const std::string path = dir / "full_disk.vdb";
+  for (bool background : {false, true}) {
+    EXPECT_EXIT(
+        {
+          std::signal(SIGXFSZ, SIG_IGN);
+          struct rlimit limit {};
+          getrlimit(RLIMIT_FSIZE, &limit);
+          limit.rlim_cur = 200 * 1024;
+          setrlimit(RLIMIT_FSIZE, &limit);
+          try {
+            write_vdb_grids(path, grids, openvdb::MetaMap(), background, 4096);
+            std::_Exit(4);  // wrote past the limit: the test is broken
+          } catch (const IoError& e) {
+            std::_Exit(std::string(e.what()).find("full_disk.vdb") == std::string::npos ? 3 : 0);
+          }
+        },
+        ::testing::ExitedWithCode(0), "")
+        << (background ? "background" : "inline");
+    EXPECT_FALSE(fs::exists(path));
+  }
 }
 
 namespace {

@@ -17,7 +17,11 @@
 // per grid "units" ("HU", "id", "rgb01"). The stdout line (unless quiet) and work/vdb/report.json
 // say the level, its estimate and the budget.
 // The file is written with io::File's default compression (Blosc when OpenVDB has it, else zip)
-// to a temporary name and renamed: config.vdb_output appears complete or not at all.
+// to a temporary name and renamed: config.vdb_output appears complete or not at all
+// (vdb_write.h). Threads (--threads, vdb_level.h's estimate too): the grids are built from runs
+// of bricks on every thread and merged (the trees equal a one-thread build when the brick edge
+// is a multiple of 8, else one thread builds); with two or more, the file's write system calls
+// run beside OpenVDB's serialisation.
 // Shards (`--slices A:B`, a part of the stack): the part of the chosen level whose z lies in
 // [ceil(A * D / S), ceil(B * D / S)) (D = the level's slice count, S = the stack's), written to
 // vdb_part_path(config, A, B) ("<vdb_output stem>.slices-AAAA-BBBB.vdb" beside vdb_output)
