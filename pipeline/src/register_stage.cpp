@@ -402,7 +402,7 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
         return;
       }
       const cv::Mat registered = registered_colour(config, inputs, k);
-      if (write_registered) write_work_image(out, registered);
+      if (write_registered) write_image(out, registered);  // the copy on request: zlib level 4
       write_work_image(overlay, draw_ct_overlay(registered, hu, ct_to_rgb, config.mask.hu_threshold,
                                                 kOverlayEdge));
       run.done(k, in, outs, registered.total() * registered.elemSize());

@@ -13,8 +13,9 @@ slices, which the pipeline flags as it flags any duplicate. The content repeats,
 measure cost and memory, not accuracy (accuracy is measured on the phantoms with their truth).
 
 For the smallest N: `vispack-run --force --threads T` for T = 1 and 2, interleaved (1, 2, 1, 2,
-REPS rounds; medians), then `vispack-pack --force --threads 2` and `zstd -3 -T2` of the packed
-file's level-0 raw bytes, interleaved. For every N: `vispack-run --force --threads 2`, then the
+REPS rounds; medians), then `vispack-pack --force --threads 2`, the pack's encoder alone on the
+packed file's level-0 bytes (`format_writer_raw_bench`, 2 threads) and `zstd -3 -T2` of those raw
+bytes, interleaved. For every N: `vispack-run --force --threads 2`, then the
 pack stage and the OpenVDB export alone, each under `/usr/bin/time -v` (peak resident memory).
 """
 import json
@@ -89,7 +90,9 @@ def make_stack(base, n, dest):
 
 
 def level0_raw(vpk, path):
-    """The packed file's level-0 voxels of every channel, raw, one after the other."""
+    """The packed file's level-0 voxels of every channel, raw, one after the other; returns the
+    per-channel NRRDs `vispack-extract` wrote (the caller removes them)."""
+    nrrds = []
     with open(path, "wb") as raw:
         for ch in ("rgba", "ct", "labels"):
             nrrd = path + "." + ch + ".nrrd"
@@ -98,7 +101,8 @@ def level0_raw(vpk, path):
             with open(nrrd, "rb") as f:
                 data = f.read()
             raw.write(data[data.index(b"\n\n") + 2:])
-            os.remove(nrrd)
+            nrrds.append(nrrd)
+    return nrrds
 
 
 def main():
@@ -128,9 +132,15 @@ def main():
             # The pack stage against zstd -3 -T2 of the same level-0 bytes, interleaved.
             vpk = json.load(open(os.path.join(folder, "work", "pack", "report.json")))["output"]
             raw = os.path.join(logs, "level0.raw")
-            level0_raw(vpk, raw)
-            pack, zstd = [], []
+            nrrds = level0_raw(vpk, raw)
+            pack, zstd, writer = [], [], []
             for rep in range(REPS):
+                # The encoder alone (format::Writer with the file's options) on the same bytes,
+                # read into memory first (its reading timed apart): the same work as zstd's.
+                out = subprocess.run([f"{BIN}/format_writer_raw_bench", vpk, raw + ".vpk"] + nrrds
+                                     + ["--threads", "2"], check=True, capture_output=True, text=True)
+                writer.append(json.loads(out.stdout.strip().splitlines()[-1]))
+                os.remove(raw + ".vpk")
                 log = os.path.join(logs, f"pack-{n}-{rep}.time")
                 wall, cpu, rss = time_v([f"{BIN}/vispack-pack", "--config", config, "--force", "--quiet",
                                          "--threads", "2"], log, stdout=subprocess.DEVNULL)
@@ -144,7 +154,13 @@ def main():
                                       "vpk_bytes": os.path.getsize(vpk),
                                       "pack_wall_s": median([p["wall_s"] for p in pack]),
                                       "pack_stage_s": median([p["stage_s"] for p in pack]),
-                                      "zstd_wall_s": median([z["wall_s"] for z in zstd])}
+                                      "zstd_wall_s": median([z["wall_s"] for z in zstd]),
+                                      "writer": writer,
+                                      "writer_wall_s": median([x["write_s"] for x in writer]),
+                                      "writer_cpu_s": median([x["write_cpu_s"] for x in writer]),
+                                      "zstd_cpu_s": median([z["cpu_s"] for z in zstd])}
+            for nrrd in nrrds:
+                os.remove(nrrd)
             os.remove(raw)
             os.remove(raw + ".zst")
         else:
