@@ -7,6 +7,7 @@
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
+#include <memory>
 
 #include <openvdb/openvdb.h>
 
@@ -156,6 +157,16 @@ StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
       int(std::clamp<std::int64_t>(edge % 8 == 0 ? run.threads() : 1, 1,
                                    std::max<std::int64_t>(1, std::int64_t(body_bricks.size()))));
   std::vector<Part> parts(static_cast<std::size_t>(workers));
+  // With a brick edge that is a multiple of the leaf edge (8), each brick is whole leaves: they
+  // are filled directly and added to the trees (a leaf per 8^3 voxels holding body, inactive
+  // voxels at the background, as voxel-by-voxel accessor writes leave them, ~4x faster); edge 4
+  // takes the accessor.
+  constexpr int kLeaf = 8;
+  using CtLeaf = openvdb::FloatTree::LeafNodeType;
+  using LabelLeaf = openvdb::Int32Tree::LeafNodeType;
+  using RgbLeaf = openvdb::Vec3STree::LeafNodeType;
+  static_assert(CtLeaf::DIM == kLeaf && LabelLeaf::DIM == kLeaf && RgbLeaf::DIM == kLeaf);
+  const bool by_leaves = edge % kLeaf == 0;
   parallel_for(workers, workers, [&](std::int64_t w) {
     Part& out = parts[std::size_t(w)];
     auto ct_acc = out.ct->getAccessor();
@@ -178,25 +189,65 @@ StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
       const std::int64_t ny = std::min(edge, info.dims[1] - by * edge);
       const std::int64_t z_begin = std::max<std::int64_t>(0, z_first - bz * edge);
       const std::int64_t nz = std::min(edge, z_last - bz * edge);
-      for (std::int64_t z = z_begin; z < nz; ++z)
-        for (std::int64_t y = 0; y < ny; ++y)
-          for (std::int64_t x = 0; x < nx; ++x) {
-            const std::size_t v = std::size_t((z * edge + y) * edge + x);
-            const std::uint8_t* px = c + 4 * v;
-            if (px[3] == 0) continue;
-            const openvdb::Coord ijk(int(bx * edge + x), int(by * edge + y), int(bz * edge + z));
-            rgb_acc.setValue(ijk, openvdb::Vec3s(px[0] / 255.0f, px[1] / 255.0f, px[2] / 255.0f));
-            if (h) {
-              std::int16_t hu;
-              std::memcpy(&hu, h + 2 * v, 2);
-              ct_acc.setValue(ijk, float(hu));
+      const auto hu_at = [&](std::size_t v) {
+        std::int16_t hu;
+        std::memcpy(&hu, h + 2 * v, 2);
+        return float(hu);
+      };
+      const auto id_at = [&](std::size_t v) {
+        std::uint16_t id = l[v];
+        if (labels16) std::memcpy(&id, l + 2 * v, 2);
+        return int(id);
+      };
+      if (!by_leaves) {
+        for (std::int64_t z = z_begin; z < nz; ++z)
+          for (std::int64_t y = 0; y < ny; ++y)
+            for (std::int64_t x = 0; x < nx; ++x) {
+              const std::size_t v = std::size_t((z * edge + y) * edge + x);
+              const std::uint8_t* px = c + 4 * v;
+              if (px[3] == 0) continue;
+              const openvdb::Coord ijk(int(bx * edge + x), int(by * edge + y), int(bz * edge + z));
+              rgb_acc.setValue(ijk, openvdb::Vec3s(px[0] / 255.0f, px[1] / 255.0f, px[2] / 255.0f));
+              if (h) ct_acc.setValue(ijk, hu_at(v));
+              if (l) label_acc.setValue(ijk, id_at(v));
+              ++out.active;
             }
-            if (l) {
-              std::uint16_t id = l[v];
-              if (labels16) std::memcpy(&id, l + 2 * v, 2);
-              label_acc.setValue(ijk, int(id));
-            }
-            ++out.active;
+        continue;
+      }
+      for (std::int64_t lz = z_begin / kLeaf * kLeaf; lz < nz; lz += kLeaf)
+        for (std::int64_t ly = 0; ly < ny; ly += kLeaf)
+          for (std::int64_t lx = 0; lx < nx; lx += kLeaf) {
+            const openvdb::Coord origin(int(bx * edge + lx), int(by * edge + ly),
+                                        int(bz * edge + lz));
+            std::unique_ptr<RgbLeaf> rgb_leaf;
+            std::unique_ptr<CtLeaf> ct_leaf;
+            std::unique_ptr<LabelLeaf> label_leaf;
+            for (std::int64_t z = std::max(lz, z_begin); z < std::min(lz + kLeaf, nz); ++z)
+              for (std::int64_t y = ly; y < std::min(ly + kLeaf, ny); ++y)
+                for (std::int64_t x = lx; x < std::min(lx + kLeaf, nx); ++x) {
+                  const std::size_t v = std::size_t((z * edge + y) * edge + x);
+                  const std::uint8_t* px = c + 4 * v;
+                  if (px[3] == 0) continue;
+                  if (!rgb_leaf) {
+                    rgb_leaf = std::make_unique<RgbLeaf>(origin, out.rgb->background(), false);
+                    if (h) ct_leaf = std::make_unique<CtLeaf>(origin, out.ct->background(), false);
+                    if (l)
+                      label_leaf =
+                          std::make_unique<LabelLeaf>(origin, out.labels->background(), false);
+                  }
+                  // A leaf's offset: x slowest, z fastest (LeafNode::coordToOffset).
+                  const openvdb::Index offset =
+                      openvdb::Index(((x - lx) << 6) | ((y - ly) << 3) | (z - lz));
+                  rgb_leaf->setValueOn(
+                      offset, openvdb::Vec3s(px[0] / 255.0f, px[1] / 255.0f, px[2] / 255.0f));
+                  if (ct_leaf) ct_leaf->setValueOn(offset, hu_at(v));
+                  if (label_leaf) label_leaf->setValueOn(offset, id_at(v));
+                  ++out.active;
+                }
+            if (!rgb_leaf) continue;
+            out.rgb->tree().addLeaf(rgb_leaf.release());
+            if (ct_leaf) out.ct->tree().addLeaf(ct_leaf.release());
+            if (label_leaf) out.labels->tree().addLeaf(label_leaf.release());
           }
     }
   });

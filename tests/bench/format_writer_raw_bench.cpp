@@ -59,8 +59,8 @@ int main(int argc, char** argv) {
 
     const format::Reader tmpl = format::Reader::open(template_path);
     if (inputs.size() != tmpl.channels().size())
-      throw UsageError(cat("one NRRD per channel: ", template_path, " has ",
-                           tmpl.channels().size(), " channels, ", inputs.size(), " given"));
+      throw UsageError(cat("one NRRD per channel: ", template_path, " has ", tmpl.channels().size(),
+                           " channels, ", inputs.size(), " given"));
     format::WriterOptions options;
     options.dims = tmpl.dims(0);
     options.spacing_mm = tmpl.spacing_mm(0);

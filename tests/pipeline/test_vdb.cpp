@@ -19,6 +19,7 @@
 #include "test_support.h"
 #include "vispack/common/atomic_file.h"
 #include "vispack/format/reader.h"
+#include "vispack/format/writer.h"
 #include "vispack/phantom/phantom.h"
 #include "vispack/pipeline/run.h"
 #include "vispack/pipeline/slice_io.h"
@@ -267,6 +268,91 @@ TEST(Vdb, ThreadsBuildTheGridsOfOneThread) {
   EXPECT_TRUE(ct[3]->tree().hasSameTopology(ct[1]->tree()));
   EXPECT_TRUE(labels[3]->tree().hasSameTopology(labels[1]->tree()));
   EXPECT_EQ(file_bytes[3], file_bytes[1]);
+}
+
+// Bricks of whole leaves (edge a multiple of 8, every edge a config allows) fill OpenVDB leaves
+// directly; a packed file of edge 4 (the format allows it) is exported voxel by voxel through an
+// accessor. The level-0 voxels do not depend on the brick edge, so both give the same grids.
+TEST(Vdb, LeafFillingEqualsVoxelByVoxel) {
+  test::TempDir dir;
+  make_tiny_phantom(dir.path());
+  auto j = nlohmann::json::parse(read_file(dir / "config.json"));
+  j["vdb"]["level"] = 0;
+  write_file_atomic(dir / "config.json", j.dump());
+  Config config = load_config(dir / "config.json");
+  RunOptions options;
+  options.quiet = true;
+  run_pipeline(config, options);
+  openvdb::initialize();
+  struct Grids {
+    std::map<std::array<int, 3>, openvdb::Vec3s> rgb;
+    std::map<std::array<int, 3>, float> ct;
+    std::map<std::array<int, 3>, int> labels;
+    openvdb::Index64 leaves = 0;
+  };
+  auto read_all = [&] {
+    Grids g;
+    auto rgb = read_grid<openvdb::Vec3SGrid>(config.vdb_output, "rgb");
+    EXPECT_TRUE(rgb);
+    if (!rgb) return g;
+    g.rgb = active_voxels(*rgb);
+    g.leaves = rgb->tree().leafCount();
+    g.ct = active_voxels(*read_grid<openvdb::FloatGrid>(config.vdb_output, "ct"));
+    g.labels = active_voxels(*read_grid<openvdb::Int32Grid>(config.vdb_output, "labels"));
+    return g;
+  };
+  const Grids by_leaves = read_all();
+  {
+    // The same level 0 repacked with 4^3 bricks.
+    const format::Reader packed = format::Reader::open(config.output);
+    ASSERT_EQ(packed.brick_edge() % 8, 0);
+    format::WriterOptions o;
+    o.dims = packed.dims(0);
+    o.spacing_mm = packed.spacing_mm(0);
+    o.origin_mm = packed.origin_mm(0);
+    o.brick_edge = 4;
+    o.label_table = packed.label_table();
+    std::vector<std::vector<std::uint8_t>> levels;
+    for (std::size_t c = 0; c < packed.channels().size(); ++c) {
+      format::ChannelSpec spec = packed.channels()[c];
+      if (spec.name == "labels") spec.type = format::ChannelType::kUint16;  // passed as uint16
+      o.channels.push_back(spec);
+      levels.push_back(packed.read_level(int(c), 0));
+    }
+    const std::size_t plane = std::size_t(o.dims[0]) * std::size_t(o.dims[1]);
+    const int labels_c = packed.channel_index("labels");
+    const std::size_t label_bytes =
+        format::channel_type_bytes(packed.channels()[std::size_t(labels_c)].type);
+    std::vector<std::uint16_t> ids(plane);
+    format::Writer writer(config.output + ".edge4", o);
+    for (std::int64_t z = 0; z < o.dims[2]; ++z) {
+      std::vector<const void*> slices;
+      for (std::size_t c = 0; c < levels.size(); ++c) {
+        const std::size_t bytes = format::channel_type_bytes(packed.channels()[c].type);
+        const std::uint8_t* slice = levels[c].data() + std::size_t(z) * plane * bytes;
+        if (int(c) == labels_c && label_bytes == 1) {
+          for (std::size_t i = 0; i < plane; ++i)
+            ids[i] = slice[i];
+          slices.push_back(ids.data());
+        } else {
+          slices.push_back(slice);
+        }
+      }
+      writer.append_slice(slices);
+    }
+    writer.finish();
+  }
+  fs::rename(config.output + ".edge4", config.output);
+  StageOptions so;
+  so.quiet = true;
+  so.force = true;
+  ASSERT_EQ(run_vdb_stage(config, so).processed, 1);
+  const Grids by_voxels = read_all();
+  ASSERT_GT(by_leaves.rgb.size(), 500u);
+  EXPECT_TRUE(by_voxels.rgb == by_leaves.rgb);
+  EXPECT_TRUE(by_voxels.ct == by_leaves.ct);
+  EXPECT_TRUE(by_voxels.labels == by_leaves.labels);
+  EXPECT_EQ(by_voxels.leaves, by_leaves.leaves);
 }
 
 // write_vdb_grids gives the bytes of OpenVDB's own io::File::write (all but the file's random

@@ -61,11 +61,11 @@ void write_image(const std::string& path, const cv::Mat& image, int jpeg_quality
                  int png_level = 4);
 
 // Writes a per-slice work-folder image (mask, overlay, label slice, resampled CT, QC picture;
-// not the registered colour copy, which stays at write_image's level 4) encoded for speed: a PNG at zlib level 1 with the Up row filter and zlib's
-// run-length strategy (ImageWriteOptions::png_fast); other extensions as write_image. At
-// 2048x1216 this took the streaming pass (mask + labels + pack) from 0.181 to 0.131 CPU-s per
-// slice, and the mask and label PNGs shrink to less than half (docs/BENCHMARKS.md "Work-folder
-// PNGs"). Deterministic bytes; throws IoError naming the path.
+// not the registered colour copy, which stays at write_image's level 4) encoded for speed: a PNG at
+// zlib level 1 with the Up row filter and zlib's run-length strategy (ImageWriteOptions::png_fast);
+// other extensions as write_image. At 2048x1216 this took the streaming pass (mask + labels + pack)
+// from 0.181 to 0.131 CPU-s per slice, and the mask and label PNGs shrink to less than half
+// (docs/BENCHMARKS.md "Work-folder PNGs"). Deterministic bytes; throws IoError naming the path.
 void write_work_image(const std::string& path, const cv::Mat& image);
 
 // Writes a header-less raw slice in `layout` (planar or interleaved, 8 or 16 bit, byte order;
