@@ -331,6 +331,16 @@ cv::Mat map_ids(const cv::Mat& seg, const std::unordered_map<std::uint32_t, std:
   return ids;
 }
 
+namespace {
+
+// std::floor for the image coordinates here (|v| far below 2^31), without the library call.
+inline int floor_to_int(double v) {
+  const int i = int(v);  // truncates toward zero
+  return v < double(i) ? i - 1 : i;
+}
+
+}  // namespace
+
 cv::Mat resample_labels_nearest(const cv::Mat& labels, const SliceTransform& t,
                                 const std::array<double, 2>& center_px, cv::Size out_size) {
   CV_Assert(labels.type() == CV_16UC1);
@@ -350,7 +360,7 @@ cv::Mat resample_labels_nearest(const cv::Mat& labels, const SliceTransform& t,
       const double px = m00_x[std::size_t(x)] + m01_y + m(0, 2);
       const double py = m10_x[std::size_t(x)] + m11_y + m(1, 2);
       // A tiny bias keeps exact half-pixel positions stable against rounding noise of the matrix.
-      int ix = int(std::floor(px + 0.5 + 1e-9)), iy = int(std::floor(py + 0.5 + 1e-9));
+      const int ix = floor_to_int(px + 0.5 + 1e-9), iy = floor_to_int(py + 0.5 + 1e-9);
       if (ix >= 0 && iy >= 0 && ix < labels.cols && iy < labels.rows)
         o[x] = labels.at<std::uint16_t>(iy, ix);
     }
