@@ -16,6 +16,7 @@
 #include <stdexcept>
 #include <thread>
 #include <unordered_set>
+#include <utility>
 
 #include "layout.h"
 #include "spill_store.h"
@@ -30,6 +31,29 @@
 
 namespace vispack::format {
 namespace {
+
+// A byte buffer whose bytes are not zeroed when it is sized: the level-0 slab (~1 GB at
+// 2048x1216) is filled slice by slice before any of it is read (a brick past the last valid
+// slice replicates it: make_brick), so zeroing it first only cost time at the start of a pack.
+template <class T>
+struct DefaultInitAllocator : std::allocator<T> {
+  template <class U>
+  struct rebind {
+    using other = DefaultInitAllocator<U>;
+  };
+  DefaultInitAllocator() = default;
+  template <class U>
+  DefaultInitAllocator(const DefaultInitAllocator<U>&) noexcept {}
+  template <class U>
+  void construct(U* p) noexcept {
+    ::new (static_cast<void*>(p)) U;  // default-initialised: bytes left as they are
+  }
+  template <class U, class... Args>
+  void construct(U* p, Args&&... args) {
+    ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
+  }
+};
+using UninitialisedBytes = std::vector<std::uint8_t, DefaultInitAllocator<std::uint8_t>>;
 
 using detail::align_up;
 using detail::IndexEntry;
@@ -510,7 +534,7 @@ struct Writer::Impl {
     std::int64_t received = 0;
     std::uint64_t index_base = 0;
     // Level 0: per channel, the slab of edge slices being filled (the only full-size buffer).
-    std::vector<std::vector<std::uint8_t>> slab;
+    std::vector<UninitialisedBytes> slab;
     // Levels >= 1: where channel c's slab lives in the spill store (edge planes), and the last
     // two slices received (per channel, two planes), which the next level is reduced from.
     std::vector<std::uint64_t> spill_offset;
