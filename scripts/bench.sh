@@ -14,7 +14,7 @@
 # VISPACK_BENCH_MEM_SLICES (default "64 128 256"): slice counts of the per-stage memory runs;
 # VISPACK_BENCH_STORE_SLICES (default 8): slices of the vhp phantom of the stored-size run;
 # VISPACK_BENCH_REAL_SLICES (default "128 256 512"): stack sizes of the real-size runs (2048x1216),
-# VISPACK_BENCH_REAL_REPS (default 2): their one/two-thread and pack/zstd rounds.
+# VISPACK_BENCH_REAL_REPS (default 3): their one/two-thread and pack/zstd rounds.
 # Results (JSON, logs) go to BUILD/bench/results; any failing benchmark makes the script exit 1.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)

@@ -31,7 +31,7 @@ import vispack  # noqa: E402  (the project's own reader: the packed file's geome
 
 BIN = os.environ["VISPACK_BENCH_BIN"]
 WORK = os.environ["VISPACK_BENCH_WORK"]
-REPS = int(os.environ.get("VISPACK_BENCH_REAL_REPS", "2"))
+REPS = int(os.environ.get("VISPACK_BENCH_REAL_REPS", "3"))
 
 
 def time_v(cmd, log, **kw):
@@ -137,9 +137,9 @@ def main():
             for rep in range(REPS):
                 # The encoder alone (format::Writer with the file's options) on the same bytes,
                 # read into memory first (its reading timed apart): the same work as zstd's.
-                out = subprocess.run([f"{BIN}/format_writer_raw_bench", vpk, raw + ".vpk"] + nrrds
-                                     + ["--threads", "2"], check=True, capture_output=True, text=True)
-                writer.append(json.loads(out.stdout.strip().splitlines()[-1]))
+                proc = subprocess.run([f"{BIN}/format_writer_raw_bench", vpk, raw + ".vpk"] + nrrds
+                                      + ["--threads", "2"], check=True, capture_output=True, text=True)
+                writer.append(json.loads(proc.stdout.strip().splitlines()[-1]))
                 os.remove(raw + ".vpk")
                 log = os.path.join(logs, f"pack-{n}-{rep}.time")
                 wall, cpu, rss = time_v([f"{BIN}/vispack-pack", "--config", config, "--force", "--quiet",
