@@ -4,10 +4,11 @@
 //
 // Bytes are collected in a buffer of `buffer_bytes`; a full buffer is handed to the background
 // thread, which writes it with AtomicFile::pwrite at the offset it belongs to, while the
-// producer fills the next one (at most two buffers wait: memory is ~3 x buffer_bytes). Seeking
-// (seekp to an earlier position to patch an offset, then back) hands the buffered bytes over and
-// continues at the new position; the background thread writes the chunks in the order they were
-// handed over, so a later patch lands after the bytes it overwrites. tellp() costs nothing.
+// producer fills the next one (at most two wait and one is written: memory <= 4 x buffer_bytes).
+// Seeking (seekp to an earlier position to patch an offset, then back) hands the buffered bytes
+// over and continues at the new position; the background thread writes the chunks in the order
+// they were handed over, so a later patch lands after the bytes it overwrites. tellp() costs
+// nothing.
 // With `background` false the chunks are written on the calling thread (one core).
 //
 // Errors: a failing write (disk full, file too large) stops the writing; further output fails
