@@ -34,7 +34,7 @@ namespace {
 
 // A byte buffer whose bytes are not zeroed when it is sized: the level-0 slab (~1 GB at
 // 2048x1216) is filled slice by slice before any of it is read (a brick past the last valid
-// slice replicates it: make_brick), so zeroing it first only cost time at the start of a pack.
+// slice replicates it: encode_brick), so zeroing it first only cost time at the start of a pack.
 template <class T>
 struct DefaultInitAllocator : std::allocator<T> {
   template <class U>

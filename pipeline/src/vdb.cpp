@@ -153,10 +153,6 @@ StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
     openvdb::Vec3SGrid::Ptr rgb = openvdb::Vec3SGrid::create(openvdb::Vec3s(0, 0, 0));
     std::uint64_t active = 0;
   };
-  const int workers =
-      int(std::clamp<std::int64_t>(edge % 8 == 0 ? run.threads() : 1, 1,
-                                   std::max<std::int64_t>(1, std::int64_t(body_bricks.size()))));
-  std::vector<Part> parts(static_cast<std::size_t>(workers));
   // With a brick edge that is a multiple of the leaf edge (8), each brick is whole leaves: they
   // are filled directly and added to the trees (a leaf per 8^3 voxels holding body, inactive
   // voxels at the background, as voxel-by-voxel accessor writes leave them, without an accessor
@@ -167,6 +163,10 @@ StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
   using RgbLeaf = openvdb::Vec3STree::LeafNodeType;
   static_assert(CtLeaf::DIM == kLeaf && LabelLeaf::DIM == kLeaf && RgbLeaf::DIM == kLeaf);
   const bool by_leaves = edge % kLeaf == 0;
+  const int workers =
+      int(std::clamp<std::int64_t>(by_leaves ? run.threads() : 1, 1,
+                                   std::max<std::int64_t>(1, std::int64_t(body_bricks.size()))));
+  std::vector<Part> parts(static_cast<std::size_t>(workers));
   parallel_for(workers, workers, [&](std::int64_t w) {
     Part& out = parts[std::size_t(w)];
     auto ct_acc = out.ct->getAccessor();
