@@ -7,11 +7,11 @@
 #include <vector>
 
 #include <opencv2/imgproc.hpp>
-#include <opencv2/video/tracking.hpp>
 
 #include "vispack/common/error.h"
 #include "vispack/common/math_constants.h"
 #include "vispack/pipeline/outline.h"
+#include "vispack/pipeline/register/ecc.h"
 #include "vispack/pipeline/register/rotation_search.h"
 
 namespace vispack::pipeline {
@@ -51,34 +51,18 @@ cv::Matx23d to_full(const cv::Matx23d& m, double sx, double sy) {
   return compose_affine(work_to_full(sx, sy), compose_affine(m, full_to_work(sx, sy)));
 }
 
-cv::Mat matx_to_mat32(const cv::Matx23d& m) {
-  cv::Mat w(2, 3, CV_32F);
-  for (int i = 0; i < 6; ++i)
-    w.at<float>(i / 3, i % 3) = float(m.val[i]);
-  return w;
-}
-cv::Matx23d mat32_to_matx(const cv::Mat& w) {
-  cv::Matx23d m;
-  for (int i = 0; i < 6; ++i)
-    m.val[i] = w.at<float>(i / 3, i % 3);
-  return m;
-}
-
 // ECC on (template, input) from `m` (template → input pixels); updates m. Returns rho or −1.
 double ecc(const cv::Mat& tmpl, const cv::Mat& input, cv::Matx23d& m, int iterations, double eps,
            int blur) {
-  cv::Mat w = matx_to_mat32(m);
-  try {
-    const double rho = cv::findTransformECC(
-        tmpl, input, w, cv::MOTION_EUCLIDEAN,
-        cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, iterations, eps),
-        cv::noArray(), blur);
-    if (!std::isfinite(rho)) return -1.0;
-    m = mat32_to_matx(w);
-    return rho;
-  } catch (const cv::Exception&) {
-    return -1.0;
-  }
+  EccOptions options;
+  options.iterations = iterations;
+  options.eps = eps;
+  options.blur_size = blur;
+  cv::Matx23d w = m;
+  const std::optional<double> rho = ecc_euclidean(tmpl, input, w, options);
+  if (!rho) return -1.0;
+  m = w;
+  return *rho;
 }
 
 // Median RGB of a 2-pixel frame along the border (the gel around the body).

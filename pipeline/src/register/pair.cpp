@@ -7,12 +7,12 @@
 #include <optional>
 
 #include <opencv2/imgproc.hpp>
-#include <opencv2/video/tracking.hpp>
 
 #include "vispack/common/error.h"
 #include "vispack/common/hash.h"
 #include "vispack/common/math_constants.h"
 #include "vispack/common/parallel.h"
+#include "vispack/pipeline/register/ecc.h"
 #include "vispack/pipeline/register/rotation_search.h"
 
 namespace vispack::pipeline {
@@ -23,22 +23,17 @@ constexpr int kLookBack = 4;  // edges reach back over at most 4 slices
 // coarse estimate (within ~0.1 coarse px) it converges in a few iterations.
 constexpr double kFineEps = 1e-5;
 
-// ECC at one level; `m` (full-resolution j→k matrix) is updated in place. Returns rho or throws.
-double ecc_level(const cv::Mat& from, const cv::Mat& to, double scale, cv::Matx23d& m,
-                 int iterations, double eps) {
+// ECC at one level; `m` (full-resolution j→k matrix) is updated in place on success. Returns
+// rho, or nullopt where ECC fails (m unchanged).
+std::optional<double> ecc_level(const cv::Mat& from, const cv::Mat& to, double scale,
+                                cv::Matx23d& m, int iterations, double eps) {
   cv::Matx23d ms = scale_affine(m, scale);
-  cv::Mat warp(2, 3, CV_32F);
-  for (int r = 0; r < 2; ++r)
-    for (int c = 0; c < 3; ++c)
-      warp.at<float>(r, c) = float(ms(r, c));
-  const double rho = cv::findTransformECC(
-      from, to, warp, cv::MOTION_EUCLIDEAN,
-      cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, iterations, eps),
-      cv::noArray(), 1);  // the frames are pre-blurred (prepare_frame)
-  for (int r = 0; r < 2; ++r)
-    for (int c = 0; c < 3; ++c)
-      ms(r, c) = warp.at<float>(r, c);
-  m = unscale_affine(ms, scale);
+  EccOptions options;
+  options.iterations = iterations;
+  options.eps = eps;
+  options.blur_size = 1;  // the frames are pre-blurred (prepare_frame)
+  const std::optional<double> rho = ecc_euclidean(from, to, ms, options);
+  if (rho) m = unscale_affine(ms, scale);
   return rho;
 }
 
@@ -48,20 +43,17 @@ double ecc_level(const cv::Mat& from, const cv::Mat& to, double scale, cv::Matx2
 bool refine_fine(const RegisterFrame& from, const RegisterFrame& to, const RegisterOptions& options,
                  const Rigid& start, cv::Matx23d m, PairEstimate& est) {
   const cv::Point2d centre = image_centre(from.full_size);
-  try {
-    const double rho = ecc_level(from.fine, to.fine, from.fine_scale, m,
-                                 std::max(1, options.ecc_iterations), kFineEps);
-    const Rigid refined = rigid_from_matrix(m, centre);
-    const Rigid diff{refined.rotation_deg - start.rotation_deg, refined.dx_px - start.dx_px,
-                     refined.dy_px - start.dy_px};
-    if (std::isfinite(rho) && rigid_motion_px(diff, from.full_size) < 4.0 / from.coarse_scale) {
-      est.relative = refined;
-      est.quality = std::clamp(rho, 0.0, 1.0);
-      est.ecc_ok = true;
-      return true;
-    }
-  } catch (const cv::Exception&) {
-    // ECC did not converge.
+  const std::optional<double> rho = ecc_level(from.fine, to.fine, from.fine_scale, m,
+                                              std::max(1, options.ecc_iterations), kFineEps);
+  if (!rho) return false;  // ECC did not converge
+  const Rigid refined = rigid_from_matrix(m, centre);
+  const Rigid diff{refined.rotation_deg - start.rotation_deg, refined.dx_px - start.dx_px,
+                   refined.dy_px - start.dy_px};
+  if (rigid_motion_px(diff, from.full_size) < 4.0 / from.coarse_scale) {
+    est.relative = refined;
+    est.quality = std::clamp(*rho, 0.0, 1.0);
+    est.ecc_ok = true;
+    return true;
   }
   return false;
 }
@@ -132,12 +124,7 @@ PairEstimate estimate_pair(const RegisterFrame& from, const RegisterFrame& to,
   auto sweep = [&]() { return sweep_rotation(evaluate); };
   // Coarse ECC from a phase estimate; returns rho (−1 on failure) and updates `m`.
   auto coarse_ecc = [&](cv::Matx23d& m) {
-    try {
-      const double rho = ecc_level(from.coarse, to.coarse, from.coarse_scale, m, 30, 1e-4);
-      return std::isfinite(rho) ? rho : -1.0;
-    } catch (const cv::Exception&) {
-      return -1.0;
-    }
+    return ecc_level(from.coarse, to.coarse, from.coarse_scale, m, 30, 1e-4).value_or(-1.0);
   };
   Candidate best{};
   if (options.method == "phase") {

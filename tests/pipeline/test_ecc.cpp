@@ -1,0 +1,197 @@
+// The fused Euclidean ECC (register/ecc.h) against OpenCV's cv::findTransformECC on the same
+// images and start (the reference it reimplements), and against the true motion of synthetic
+// images warped by a known rotation + translation with exact (double) resampling.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include <opencv2/imgproc.hpp>
+#include <opencv2/video/tracking.hpp>
+
+#include "vispack/common/error.h"
+#include "vispack/common/math_constants.h"
+#include "vispack/pipeline/register/ecc.h"
+
+namespace vp = vispack::pipeline;
+
+namespace {
+
+// Smooth random texture (σ = `sigma` px) with a bright disc and a dark bar: structure at several
+// scales, values 0..1, CV_32F.
+cv::Mat texture(cv::Size size, unsigned seed, double sigma) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<float> noise(0.f, 1.f);
+  cv::Mat tex(size, CV_32F);
+  for (int y = 0; y < size.height; ++y)
+    for (int x = 0; x < size.width; ++x)
+      tex.at<float>(y, x) = noise(rng);
+  cv::GaussianBlur(tex, tex, cv::Size(0, 0), sigma);
+  cv::normalize(tex, tex, 0, 1, cv::NORM_MINMAX);
+  cv::circle(tex, cv::Point(size.width / 3, size.height / 2), size.height / 5, cv::Scalar(1.2), -1);
+  cv::rectangle(tex, cv::Rect(size.width / 2, size.height / 4, size.width / 4, size.height / 10),
+                cv::Scalar(-0.3), -1);
+  cv::GaussianBlur(tex, tex, cv::Size(0, 0), 1.5);
+  return tex;
+}
+
+// Template → input matrix of a rotation by θ about `c` followed by a shift d:
+// q = c + R(θ)(p − c) + d.
+cv::Matx23d rigid(double theta_deg, cv::Point2d d, cv::Point2d c) {
+  const double a = theta_deg * vispack::kPi / 180.0, ca = std::cos(a), sa = std::sin(a);
+  return {ca, -sa, c.x - ca * c.x + sa * c.y + d.x, sa, ca, c.y - sa * c.x - ca * c.y + d.y};
+}
+
+// input(q) sampled at template pixel p: input(m · p), bicubic, so the template is the input
+// seen through m (the pixels whose source leaves the input are 0: ECC's mask ignores them).
+cv::Mat warp_to_template(const cv::Mat& input, const cv::Matx23d& m, cv::Size size) {
+  cv::Mat out;
+  cv::warpAffine(input, out, cv::Mat(m), size, cv::INTER_CUBIC | cv::WARP_INVERSE_MAP,
+                 cv::BORDER_REFLECT);
+  return out;
+}
+
+// Largest displacement between two template → input matrices over the template's corners.
+double max_corner_px(const cv::Matx23d& a, const cv::Matx23d& b, cv::Size size) {
+  double worst = 0;
+  for (double x : {0.0, double(size.width - 1)})
+    for (double y : {0.0, double(size.height - 1)}) {
+      const cv::Vec3d p(x, y, 1.0);
+      const cv::Vec2d d = a * p - b * p;
+      worst = std::max(worst, std::hypot(d[0], d[1]));
+    }
+  return worst;
+}
+
+struct OpenCvResult {
+  bool ok = false;
+  double rho = 0;
+  cv::Matx23d warp;
+};
+
+OpenCvResult opencv_ecc(const cv::Mat& tmpl, const cv::Mat& input, const cv::Matx23d& start,
+                        const vp::EccOptions& o) {
+  cv::Mat w(2, 3, CV_32F);
+  for (int i = 0; i < 6; ++i)
+    w.at<float>(i / 3, i % 3) = float(start.val[i]);
+  OpenCvResult r;
+  try {
+    r.rho = cv::findTransformECC(
+        tmpl, input, w, cv::MOTION_EUCLIDEAN,
+        cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, o.iterations, o.eps),
+        cv::noArray(), o.blur_size);
+    r.ok = true;
+  } catch (const cv::Exception&) {
+    r.ok = false;
+  }
+  for (int i = 0; i < 6; ++i)
+    r.warp.val[i] = w.at<float>(i / 3, i % 3);
+  return r;
+}
+
+// Runs OpenCV's ECC and the fused one from `start` and checks they end at the same place with
+// the same correlation; returns the fused result.
+cv::Matx23d expect_same_as_opencv(const cv::Mat& tmpl, const cv::Mat& input,
+                                  const cv::Matx23d& start, const vp::EccOptions& o) {
+  const OpenCvResult ref = opencv_ecc(tmpl, input, start, o);
+  EXPECT_TRUE(ref.ok);
+  cv::Matx23d ours = start;
+  const std::optional<double> rho = vp::ecc_euclidean(tmpl, input, ours, o);
+  EXPECT_TRUE(rho.has_value());
+  if (!ref.ok || !rho) return ours;
+  EXPECT_NEAR(*rho, ref.rho, 2e-5);
+  EXPECT_LT(max_corner_px(ours, ref.warp, tmpl.size()), 0.01);
+  return ours;
+}
+
+struct Case {
+  double theta_deg;
+  cv::Point2d shift;
+  int blur;
+};
+
+}  // namespace
+
+// Same images, same start: the fused iteration ends where OpenCV's does (within OpenCV's 1/32 px
+// interpolation rounding), with the same correlation; and both end at the true motion.
+TEST(Ecc, AgreesWithOpenCvAndFindsTheTrueMotion) {
+  const cv::Size in_size(420, 300), t_size(400, 280);
+  const cv::Mat input = texture(in_size, 7, 4.0);
+  const cv::Point2d c(0.5 * (t_size.width - 1), 0.5 * (t_size.height - 1));
+  for (const Case& k : {Case{1.7, {3.3, -2.6}, 1}, Case{-4.0, {-6.2, 5.4}, 3},
+                        Case{0.35, {0.41, 0.77}, 5}, Case{8.0, {12.0, -9.5}, 5}}) {
+    SCOPED_TRACE(testing::Message() << "theta " << k.theta_deg << " shift " << k.shift.x << ","
+                                    << k.shift.y << " blur " << k.blur);
+    const cv::Matx23d truth = rigid(k.theta_deg, k.shift + cv::Point2d(10, 10), c);
+    const cv::Mat tmpl = warp_to_template(input, truth, t_size);
+    // Start off by ~2 px and a fraction of the rotation, as the callers' coarse steps leave it.
+    const cv::Matx23d start = rigid(0.8 * k.theta_deg, k.shift + cv::Point2d(11.6, 8.7), c);
+    vp::EccOptions o;
+    o.iterations = 100;
+    o.eps = 1e-7;
+    o.blur_size = k.blur;
+    const cv::Matx23d ours = expect_same_as_opencv(tmpl, input, start, o);
+    EXPECT_LT(max_corner_px(ours, truth, t_size), 0.03);
+    EXPECT_LT(max_corner_px(opencv_ecc(tmpl, input, start, o).warp, truth, t_size), 0.03);
+    // The result is a rotation.
+    EXPECT_NEAR(ours(0, 0), ours(1, 1), 1e-12);
+    EXPECT_NEAR(ours(0, 1), -ours(1, 0), 1e-12);
+  }
+}
+
+// A different modality: the template is a non-monotonic intensity map of the input plus noise
+// (the CT-anchor case), the iteration capped at a few updates: after the same number of updates
+// both stand at the same place.
+TEST(Ecc, SameStepsAsOpenCvOnAMultimodalPair) {
+  const cv::Size size(360, 260);
+  const cv::Mat input = texture(size, 11, 3.0);
+  const cv::Point2d c(0.5 * (size.width - 1), 0.5 * (size.height - 1));
+  const cv::Matx23d truth = rigid(-2.5, {4.2, 3.1}, c);
+  cv::Mat tmpl = warp_to_template(input, truth, size);
+  cv::Mat mapped(size, CV_32F);
+  std::mt19937 rng(3);
+  std::normal_distribution<float> noise(0.f, 0.02f);
+  for (int y = 0; y < size.height; ++y)
+    for (int x = 0; x < size.width; ++x) {
+      const float v = tmpl.at<float>(y, x);
+      mapped.at<float>(y, x) = 0.2f + 1.5f * v - 0.9f * v * v + noise(rng);
+    }
+  for (int iterations : {1, 3, 60}) {
+    SCOPED_TRACE(testing::Message() << iterations << " iterations");
+    vp::EccOptions o;
+    o.iterations = iterations;
+    o.eps = 1e-9;
+    o.blur_size = 3;
+    const cv::Matx23d start = rigid(-1.5, {2.5, 4.5}, c);
+    expect_same_as_opencv(mapped, input, start, o);
+  }
+}
+
+// 8-bit input is converted as OpenCV converts it; a template that maps outside the input, and
+// images with nothing to correlate, are failures, not results.
+TEST(Ecc, FailuresAreReported) {
+  const cv::Size size(200, 150);
+  const cv::Mat input = texture(size, 5, 3.0);
+  cv::Mat input8;
+  input.convertTo(input8, CV_8U, 200.0);
+  const cv::Point2d c(0.5 * (size.width - 1), 0.5 * (size.height - 1));
+  const cv::Matx23d truth = rigid(1.0, {2.0, -1.0}, c);
+  cv::Mat tmpl8;
+  warp_to_template(input8, truth, size).convertTo(tmpl8, CV_8U);
+  cv::Matx23d w = rigid(0.0, {0, 0}, c);
+  const std::optional<double> rho = vp::ecc_euclidean(tmpl8, input8, w, {});
+  ASSERT_TRUE(rho.has_value());
+  EXPECT_GT(*rho, 0.95);
+  EXPECT_LT(max_corner_px(w, truth, size), 0.1);
+
+  cv::Matx23d away = rigid(0.0, {5000, 0}, c);  // every template pixel maps outside
+  EXPECT_FALSE(vp::ecc_euclidean(tmpl8, input8, away, {}).has_value());
+  const cv::Mat flat(size, CV_32F, cv::Scalar(0.5));  // no variance: no correlation
+  cv::Matx23d w2 = rigid(0.0, {0, 0}, c);
+  EXPECT_FALSE(vp::ecc_euclidean(flat, input, w2, {}).has_value());
+  EXPECT_THROW(vp::ecc_euclidean(cv::Mat(2, 2, CV_32F, cv::Scalar(0)), input, w2, {}),
+               vispack::Error);
+  vp::EccOptions even;
+  even.blur_size = 4;
+  EXPECT_THROW(vp::ecc_euclidean(tmpl8, input8, w2, even), vispack::Error);
+}
