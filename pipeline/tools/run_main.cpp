@@ -29,8 +29,9 @@ int main(int argc, char** argv) {
                                "the work folder (instead of the one streaming pass)");
     auto threads = args.option_int("--threads", "N", "worker threads (default: all cores)");
     const bool plan = args.flag("--plan",
-                                "print \"slices N\" and \"stages ...\" (the stages the config "
-                                "enables) and exit: for schedulers (scripts/vispack-slurm)");
+                                "print \"slices N\", \"stages ...\" (the stages the config "
+                                "enables) and \"pack_slab_slices E\" (slices per level-0 slab "
+                                "of the pack) and exit: for schedulers (scripts/vispack-slurm)");
     std::string config_path = args.positional("CONFIG", "pipeline config (JSON)");
     args.done();
     if (threads) {
@@ -45,7 +46,7 @@ int main(int argc, char** argv) {
         if (name == "vdb" && (!config.vdb.enabled || config.vdb_output.empty())) continue;
         std::cout << " " << name;
       }
-      std::cout << "\n";
+      std::cout << "\npack_slab_slices " << config.pack.brick_edge << "\n";
       return 0;
     }
     pipeline::keep_slice_buffers();

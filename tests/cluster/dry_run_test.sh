@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # scripts/vispack-slurm --dry-run without a cluster: the job chain it would submit (one array per
-# sharded stage, afterok dependencies, --kill-on-invalid-dep, shard bounds from the array task),
-# run here as SLURM would run it (each array task with its SLURM_ARRAY_TASK_ID, in chain order),
-# gives the local run's packed file byte for byte; and its usage errors.
+# sharded stage, afterok dependencies, --kill-on-invalid-dep, shard bounds from the array task;
+# whole-slab shards with the pack in the per-slice job, and shards of the slices with a pack step
+# of its own), run here as SLURM would run it (each array task with its SLURM_ARRAY_TASK_ID, in
+# chain order), gives the local run's packed file byte for byte; and its usage errors.
 # Usage: tests/cluster/dry_run_test.sh BIN_DIR
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
@@ -16,43 +17,69 @@ sed -i 's/"brick_edge": *[0-9]*/"brick_edge": 8/' "$tmp/ph/config.json"
 cp -a "$tmp/ph" "$tmp/local"
 cp -a "$tmp/ph" "$tmp/my dir"  # a path with a space
 config="$tmp/my dir/config.json"
-"$root/scripts/vispack-slurm" "$config" --shards 3 --bin "$bin" --jobs-dir "$tmp/jobs" \
-  --partition short --dry-run >"$tmp/dry.out"
-[[ ! -e $tmp/jobs ]] || fail "--dry-run wrote the jobs folder"
-mapfile -t scripts < <(sed -n 's/^### \([^ ]*\.sh\)$/\1/p' "$tmp/dry.out")
-names=$(for s in "${scripts[@]}"; do basename "$s"; done | tr '\n' ' ')
-expected="01-register-measure.sh 02-register-solve.sh 03-slices.sh 04-pack.sh 05-pack-merge.sh 06-vdb.sh "
-[[ $names == "$expected" ]] || fail "jobs: '$names', expected '$expected'"
-[[ $(grep -c '^### sbatch --parsable --kill-on-invalid-dep=yes --dependency=afterok:<' "$tmp/dry.out") == 5 ]] ||
-  fail "every job but the first must depend on the previous one with afterok"
-[[ $(grep -c '^#SBATCH --array=0-2$' "$tmp/dry.out") == 4 ]] || fail "4 sharded jobs (measure, per-slice stages, pack, vdb) with --array=0-2"
-[[ $(grep -c '^#SBATCH --partition=short$' "$tmp/dry.out") == 6 ]] || fail "--partition in every job"
-grep -q 'sacct' "$tmp/dry.out" && fail "the job scripts must not use sacct"
-
-# Run the printed scripts as SLURM would: split them out, each array task with its ID, in order.
-mkdir -p "$tmp/run"
-awk -v dir="$tmp/run" '/^### sbatch/ { f = ""; next }
-                       /^### \// { n++; f = sprintf("%s/%02d.sh", dir, n); next }
-                       f { print > f }' "$tmp/dry.out"
-[[ $(ls "$tmp/run" | wc -l) == 6 ]] || fail "could not split the 6 job scripts out of the dry run"
-for script in "$tmp"/run/*.sh; do
-  if grep -q '^#SBATCH --array=0-2$' "$script"; then
-    for i in 0 1 2; do SLURM_ARRAY_TASK_ID=$i bash "$script" || fail "$script task $i"; done
-  else
-    bash "$script" || fail "$script"
-  fi
-done
-# A task outside the array is refused.
-if SLURM_ARRAY_TASK_ID=3 bash "$tmp/run/04.sh" 2>/dev/null; then fail "task 3 of 0..2 accepted"; fi
 "$bin/vispack-run" "$tmp/local/config.json" --quiet >/dev/null
-cmp "$tmp/local/out/volume.vpk" "$tmp/my dir/out/volume.vpk" ||
-  fail "the job chain's packed file differs from the local run"
-ls "$tmp/my dir/work/pack-slabs/"slab_000{0,1,2}.vpkslab >/dev/null || fail "no slab files: pack did not shard"
+
+# dry_chain SHARDS EXPECTED_JOBS ARRAYS: the dry run's job names and sbatch lines, then its
+# scripts run as SLURM would run them (each array task with its ID, in chain order) on a fresh
+# work folder, which must give the local packed file byte for byte.
+dry_chain() {
+  local shards=$1 expected=$2 arrays=$3 jobs last=$(($3 - 1))
+  rm -rf "$tmp/my dir/work" "$tmp/my dir/out" "$tmp/run"
+  "$root/scripts/vispack-slurm" "$config" --shards "$shards" --bin "$bin" --jobs-dir "$tmp/jobs" \
+    --partition short --dry-run >"$tmp/dry.out"
+  [[ ! -e $tmp/jobs ]] || fail "--dry-run wrote the jobs folder"
+  mapfile -t scripts < <(sed -n 's/^### \([^ ]*\.sh\)$/\1/p' "$tmp/dry.out")
+  names=$(for s in "${scripts[@]}"; do basename "$s"; done | tr '\n' ' ')
+  [[ $names == "$expected" ]] || fail "$shards shards: jobs '$names', expected '$expected'"
+  jobs=${#scripts[@]}
+  [[ $(grep -c '^### sbatch --parsable --kill-on-invalid-dep=yes --dependency=afterok:<' "$tmp/dry.out") == $((jobs - 1)) ]] ||
+    fail "every job but the first must depend on the previous one with afterok"
+  [[ $(grep -c "^#SBATCH --array=0-$((shards - 1))\$" "$tmp/dry.out") == "$arrays" ]] ||
+    fail "$shards shards: $arrays sharded jobs with --array=0-$((shards - 1))"
+  [[ $(grep -c '^#SBATCH --partition=short$' "$tmp/dry.out") == "$jobs" ]] || fail "--partition in every job"
+  grep -q 'sacct' "$tmp/dry.out" && fail "the job scripts must not use sacct"
+  mkdir -p "$tmp/run"
+  awk -v dir="$tmp/run" '/^### sbatch/ { f = ""; next }
+                         /^### \// { n++; f = sprintf("%s/%02d.sh", dir, n); next }
+                         f { print > f }' "$tmp/dry.out"
+  [[ $(ls "$tmp/run" | wc -l) == "$jobs" ]] || fail "could not split the $jobs job scripts out of the dry run"
+  local script i
+  for script in "$tmp"/run/*.sh; do
+    if grep -q '^#SBATCH --array=' "$script"; then
+      for ((i = 0; i < shards; ++i)); do SLURM_ARRAY_TASK_ID=$i bash "$script" || fail "$script task $i"; done
+      # A task outside the array is refused.
+      if SLURM_ARRAY_TASK_ID=$shards bash "$script" 2>/dev/null; then fail "$script: task $shards of 0..$last accepted"; fi
+    else
+      bash "$script" || fail "$script"
+    fi
+  done
+  cmp "$tmp/local/out/volume.vpk" "$tmp/my dir/out/volume.vpk" ||
+    fail "$shards shards: the job chain's packed file differs from the local run"
+  ls "$tmp/my dir/work/pack-slabs/"slab_000{0,1,2}.vpkslab >/dev/null || fail "no slab files: pack did not shard"
+}
+
+# 3 shards, 3 slabs of 8 slices: whole-slab shards, the pack shard at the end of the per-slice
+# job (one dependent step less).
+dry_chain 3 "01-register-measure.sh 02-register-solve.sh 03-slices.sh 04-pack-merge.sh 05-vdb.sh " 3
+grep -q 'vispack-pack --slices \$a:\$b' "$tmp/run/03.sh" || fail "the per-slice job does not end with the pack shard"
 # The OpenVDB export in three parts, one per shard, and no whole file.
 parts=$(cd "$tmp/my dir/out" && ls -- *.slices-*.vdb 2>/dev/null | tr '\n' ' ')
 [[ $parts == "volume.slices-0000-0008.vdb volume.slices-0008-0016.vdb volume.slices-0016-0024.vdb " ]] ||
   fail "OpenVDB parts: '$parts'"
 [[ ! -e "$tmp/my dir/out/volume.vdb" ]] || fail "a sharded vdb step wrote the whole file too"
+
+# 2 shards, 3 slabs: whole slabs again, one shard of one slab and one of two (not i*S/N = 12).
+dry_chain 2 "01-register-measure.sh 02-register-solve.sh 03-slices.sh 04-pack-merge.sh 05-vdb.sh " 3
+parts=$(cd "$tmp/my dir/out" && ls -- *.slices-*.vdb 2>/dev/null | tr '\n' ' ')
+[[ $parts == "volume.slices-0000-0008.vdb volume.slices-0008-0024.vdb " ]] ||
+  fail "OpenVDB parts with 2 shards of 3 slabs: '$parts'"
+
+# 4 shards, 3 slabs: shards of the slices (i*S/N), the pack as its own step.
+dry_chain 4 "01-register-measure.sh 02-register-solve.sh 03-slices.sh 04-pack.sh 05-pack-merge.sh 06-vdb.sh " 4
+grep -q 'vispack-pack' "$tmp/run/03.sh" && fail "4 shards of 3 slabs: the pack joined the per-slice job"
+parts=$(cd "$tmp/my dir/out" && ls -- *.slices-*.vdb 2>/dev/null | tr '\n' ' ')
+[[ $parts == "volume.slices-0000-0006.vdb volume.slices-0006-0012.vdb volume.slices-0012-0018.vdb volume.slices-0018-0024.vdb " ]] ||
+  fail "OpenVDB parts with 4 shards: '$parts'"
 
 # Usage errors: one line, exit 2 (3 for a missing config).
 set +e
@@ -61,5 +88,7 @@ set +e
   fail "--shards x: $(cat "$tmp/err")"
 "$root/scripts/vispack-slurm" "$tmp/none.json" --dry-run 2>"$tmp/err"
 [[ $? == 3 ]] || fail "missing config: $(cat "$tmp/err")"
-"$root/scripts/vispack-slurm" --help | grep -q '^Usage: vispack-slurm CONFIG' || fail "--help"
+# (captured first: grep -q would close the pipe before a help text longer than one pipe write)
+help=$("$root/scripts/vispack-slurm" --help) || fail "--help exits $?"
+grep -q '^Usage: vispack-slurm CONFIG' <<<"$help" || fail "--help"
 echo "PASS: vispack-slurm --dry-run chain run by hand gives the local packed file"
