@@ -619,9 +619,11 @@ struct Writer::Impl {
     filled.assign(base, false);
     file.write(zeros.data(), zeros.size());  // header placeholder + zero padding up to 4096
     pos = kPayloadAlignment;
-    workers.reserve(std::size_t(threads));
+    // The calling thread makes bricks too: `threads` in all (parallel_for's convention), so a
+    // Writer of one thread compresses on one core.
+    workers.reserve(std::size_t(threads - 1));
     try {
-      for (int t = 0; t < threads; ++t)
+      for (int t = 1; t < threads; ++t)
         workers.emplace_back([this] { worker_loop(); });
     } catch (...) {
       stop_workers();

@@ -10,6 +10,7 @@
 #include <memory>
 
 #include <openvdb/openvdb.h>
+#include <tbb/global_control.h>
 
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
@@ -100,6 +101,10 @@ StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
     return run.finish(output);
   }
 
+  // OpenVDB's own parallel loops (TBB: the delayed-load metadata it computes while writing)
+  // stay within --threads too: a task given one core uses one.
+  const tbb::global_control tbb_threads(tbb::global_control::max_allowed_parallelism,
+                                        std::size_t(run.threads()));
   const format::Reader reader = format::Reader::open(config.output);
   const VdbLevelChoice choice = choose_vdb_level(config, reader, run.threads());
   const int level = choice.level;

@@ -6,7 +6,9 @@
 
 #include <csignal>
 #include <cstdlib>
+#include <fstream>
 #include <set>
+#include <string>
 
 #include "format_test_util.h"
 #include "vispack/common/hash.h"
@@ -399,6 +401,28 @@ TEST(Writer, WriteFailingWhileThreadsEncodeIsIoErrorNotACrash) {
       },
       ::testing::ExitedWithCode(0), "");
   EXPECT_FALSE(std::filesystem::exists(path));
+}
+
+// The threads of this process, from /proc/self/status.
+int process_threads() {
+  std::ifstream status("/proc/self/status");
+  std::string line;
+  while (std::getline(status, line))
+    if (line.rfind("Threads:", 0) == 0) return std::stoi(line.substr(8));
+  return -1;
+}
+
+// `threads` counts the calling thread (parallel_for's convention): a Writer of one thread starts
+// no other, one of three starts two (Determinism.SameInputSameBytesWhateverThreads: same bytes).
+TEST(Writer, ThreadsCountTheCallingThread) {
+  Volume v = make_volume({40, 30, 20}, 3, 50);
+  const int before = process_threads();
+  ASSERT_GT(before, 0);
+  for (int threads : {1, 3}) {
+    Writer w(temp_path("threads" + std::to_string(threads) + ".vpk"), options_for(v, 8, threads));
+    EXPECT_EQ(process_threads() - before, threads - 1) << threads << " threads";
+  }
+  EXPECT_EQ(process_threads(), before);  // joined when abandoned
 }
 
 TEST(Writer, RejectsBadOptionsAndMisuse) {

@@ -7,14 +7,17 @@
 #include <sys/resource.h>
 
 #include <array>
+#include <atomic>
 #include <cmath>
 #include <csignal>
 #include <cstring>
 #include <filesystem>
 #include <map>
+#include <thread>
 #include <tuple>
 
 #include <openvdb/openvdb.h>
+#include <tbb/task_scheduler_observer.h>
 
 #include "test_support.h"
 #include "vispack/common/atomic_file.h"
@@ -268,6 +271,48 @@ TEST(Vdb, ThreadsBuildTheGridsOfOneThread) {
   EXPECT_TRUE(ct[3]->tree().hasSameTopology(ct[1]->tree()));
   EXPECT_TRUE(labels[3]->tree().hasSameTopology(labels[1]->tree()));
   EXPECT_EQ(file_bytes[3], file_bytes[1]);
+}
+
+// Counts the TBB worker threads that join the calling thread's arena while it observes.
+class TbbWorkerCounter : public tbb::task_scheduler_observer {
+ public:
+  TbbWorkerCounter() { observe(true); }
+  ~TbbWorkerCounter() override { observe(false); }
+  void on_scheduler_entry(bool is_worker) override {
+    if (is_worker) ++workers;
+  }
+  std::atomic<int> workers{0};
+};
+
+// --threads 1 is one thread, OpenVDB's own TBB loops included (its write computes per-leaf
+// metadata in a TBB loop, which would otherwise take a TBB worker per core). The phantom and its
+// packed file are made by child processes (nothing of theirs runs in this one). (On a one-core
+// machine TBB has no worker either way.)
+TEST(Vdb, OneThreadRunsNoTbbWorker) {
+  test::TempDir dir;
+  ASSERT_EQ(test::run_command(test::bin("vispack-phantom") + " --out " + dir.path() +
+                              " --preset tiny --seed 6 --quiet"),
+            0);
+  ASSERT_EQ(test::run_command(test::bin("vispack-run") + " " + dir / "config.json" +
+                              " --to pack --quiet --threads 1"),
+            0);
+  Config config = load_config(dir / "config.json");
+  openvdb::initialize();
+  std::map<int, int> workers;
+  for (int threads : {2, 1}) {
+    TbbWorkerCounter counter;
+    StageOptions so;
+    so.quiet = true;
+    so.force = true;
+    so.threads = threads;
+    ASSERT_EQ(run_vdb_stage(config, so).processed, 1);
+    workers[threads] = counter.workers.load();
+  }
+  EXPECT_EQ(workers[1], 0);
+  // The observer sees the workers two threads allow (else this test could not fail).
+  if (std::thread::hardware_concurrency() >= 2) {
+    EXPECT_GT(workers[2], 0);
+  }
 }
 
 // Bricks of whole leaves (edge a multiple of 8, every edge a config allows) fill OpenVDB leaves

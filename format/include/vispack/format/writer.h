@@ -19,11 +19,11 @@
 // The coarser levels' partly filled slabs (a third of a level-0 row at most) are kept in memory
 // up to WriterOptions::coarse_levels_memory_bytes, else in a nameless temporary file beside the
 // output, so they sit in the page cache, not in the resident set.
-// Threads: `threads` persistent compression threads, started by the constructor and joined by
-// finish() or the destructor. When a slab is full, its bricks are made by them and by the
-// calling thread together, and append_slice returns once they are written: the slab buffer is
-// then refilled (the price of holding one row: reading the next slices does not overlap the
-// compression of this slab).
+// Threads: `threads` compression threads, the calling thread included (threads − 1 persistent
+// workers, started by the constructor and joined by finish() or the destructor; none for one
+// thread). When a slab is full, its bricks are made by the workers and the calling thread together,
+// and append_slice returns once they are written: the slab buffer is then refilled (the price of
+// holding one row: reading the next slices does not overlap the compression of this slab).
 // Determinism: the same slices and options give a byte-identical file, whatever `threads`
 // (no timestamps; slabs are written in the order they fill, bricks in index order within).
 // Thread-safety: a Writer is used from one thread at a time.
