@@ -46,7 +46,8 @@ int main(int argc, char** argv) {
     const bool no_fiducials = args.flag("--no-fiducials", "no fiducial tubes");
     const bool no_drift = args.flag("--no-drift", "true drift exactly zero (camera offset stays)");
     const bool no_jump = args.flag("--no-jump", "no block jump");
-    const auto threads = args.option_int("--threads", "N", "worker threads (default: all cores)");
+    const auto threads =
+        args.option_int("--threads", "N", "threads in all, this one included (default: all cores)");
     const bool quiet = args.flag("--quiet", "no progress output");
     args.done();
     if (!out || out->empty()) throw vispack::UsageError("--out DIR is required");

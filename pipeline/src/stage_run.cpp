@@ -329,7 +329,8 @@ int stage_main(const std::string& program, int argc, char** argv, const std::str
         args.option("--slices", "A:B", "process stack indices [A, B) only (a shard)", "");
     options.force = args.flag("--force", "redo every slice even if up to date");
     options.quiet = args.flag("--quiet", "no progress or summary output");
-    auto threads = args.option_int("--threads", "N", "worker threads (default: all cores)");
+    auto threads =
+        args.option_int("--threads", "N", "threads in all, this one included (default: all cores)");
     args.done();
     if (!config_path) throw UsageError("--config CONFIG is required");
     if (threads) {

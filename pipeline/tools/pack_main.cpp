@@ -29,7 +29,8 @@ int main(int argc, char** argv) {
         args.flag("--merge", "write the output from every shard's slab files (after the shards)");
     options.force = args.flag("--force", "redo even if up to date");
     options.quiet = args.flag("--quiet", "no progress or summary output");
-    auto threads = args.option_int("--threads", "N", "worker threads (default: all cores)");
+    auto threads =
+        args.option_int("--threads", "N", "threads in all, this one included (default: all cores)");
     args.done();
     if (!config_path) throw UsageError("--config CONFIG is required");
     if (threads) {

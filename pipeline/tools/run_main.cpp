@@ -27,7 +27,8 @@ int main(int argc, char** argv) {
     options.staged = args.flag("--staged",
                                "run mask, labels and pack one after another, each re-reading "
                                "the work folder (instead of the one streaming pass)");
-    auto threads = args.option_int("--threads", "N", "worker threads (default: all cores)");
+    auto threads =
+        args.option_int("--threads", "N", "threads in all, this one included (default: all cores)");
     const bool plan = args.flag("--plan",
                                 "print \"slices N\", \"stages ...\" (the stages the config "
                                 "enables) and \"pack_slab_slices E\" (slices per level-0 slab "
