@@ -275,15 +275,26 @@ TEST(Vdb, ThreadsBuildTheGridsOfOneThread) {
   EXPECT_EQ(file_bytes[3], file_bytes[1]);
 }
 
-// Counts the TBB worker threads that join the calling thread's arena while it observes.
+// Counts the TBB worker threads that join the calling thread's arena while it observes. Before
+// it stops observing it waits (up to 10 s) for the workers that joined to leave: TBB frees an
+// observer's record only when no worker holds it, and one left held at exit is reported as a
+// leak by LeakSanitizer.
 class TbbWorkerCounter : public tbb::task_scheduler_observer {
  public:
   TbbWorkerCounter() { observe(true); }
-  ~TbbWorkerCounter() override { observe(false); }
+  ~TbbWorkerCounter() override {
+    const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+    while (left.load() < workers.load() && std::chrono::steady_clock::now() < until)
+      std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    observe(false);
+  }
   void on_scheduler_entry(bool is_worker) override {
     if (is_worker) ++workers;
   }
-  std::atomic<int> workers{0};
+  void on_scheduler_exit(bool is_worker) override {
+    if (is_worker) ++left;
+  }
+  std::atomic<int> workers{0}, left{0};
 };
 
 // --threads 1 is one thread, OpenVDB's own TBB loops included (its write computes per-leaf
