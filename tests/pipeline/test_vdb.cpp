@@ -19,6 +19,7 @@
 
 #include <openvdb/openvdb.h>
 #include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 #include <tbb/task_scheduler_observer.h>
 
 #include "test_support.h"
@@ -275,26 +276,20 @@ TEST(Vdb, ThreadsBuildTheGridsOfOneThread) {
   EXPECT_EQ(file_bytes[3], file_bytes[1]);
 }
 
-// Counts the TBB worker threads that join the calling thread's arena while it observes. Before
-// it stops observing it waits (up to 10 s) for the workers that joined to leave: TBB frees an
-// observer's record only when no worker holds it, and one left held at exit is reported as a
-// leak by LeakSanitizer.
+// Counts the TBB worker threads that join `arena` while it observes. (An explicit arena, left
+// by the calling thread at the end of execute(): TBB frees an observer's record only when no
+// thread holds it, and the calling thread's own arena would hold it until exit, which
+// LeakSanitizer reports as a leak.)
 class TbbWorkerCounter : public tbb::task_scheduler_observer {
  public:
-  TbbWorkerCounter() { observe(true); }
-  ~TbbWorkerCounter() override {
-    const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(10);
-    while (left.load() < workers.load() && std::chrono::steady_clock::now() < until)
-      std::this_thread::sleep_for(std::chrono::milliseconds(1));
-    observe(false);
+  explicit TbbWorkerCounter(tbb::task_arena& arena) : tbb::task_scheduler_observer(arena) {
+    observe(true);
   }
+  ~TbbWorkerCounter() override { observe(false); }
   void on_scheduler_entry(bool is_worker) override {
     if (is_worker) ++workers;
   }
-  void on_scheduler_exit(bool is_worker) override {
-    if (is_worker) ++left;
-  }
-  std::atomic<int> workers{0}, left{0};
+  std::atomic<int> workers{0};
 };
 
 // --threads 1 is one thread, OpenVDB's own TBB loops included (its write computes per-leaf
@@ -312,23 +307,29 @@ TEST(Vdb, OneThreadRunsNoTbbWorker) {
   Config config = load_config(dir / "config.json");
   openvdb::initialize();
   {
-    TbbWorkerCounter counter;
+    tbb::task_arena arena;  // as many threads as TBB would use by itself
+    TbbWorkerCounter counter(arena);
     StageOptions so;
     so.quiet = true;
     so.threads = 1;
-    ASSERT_EQ(run_vdb_stage(config, so).processed, 1);
+    int processed = 0;
+    arena.execute([&] { processed = run_vdb_stage(config, so).processed; });
+    EXPECT_EQ(processed, 1);
     EXPECT_EQ(counter.workers.load(), 0);
   }
   // The observer does see a worker when TBB has one to give (else this test could not fail):
   // two iterations that wait for each other, so a worker must take the second.
   if (std::thread::hardware_concurrency() >= 2) {
-    TbbWorkerCounter counter;
+    tbb::task_arena arena;
+    TbbWorkerCounter counter(arena);
     std::atomic<int> arrived{0};
-    tbb::parallel_for(0, 2, [&](int) {
-      ++arrived;
-      const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(30);
-      while (arrived.load() < 2 && std::chrono::steady_clock::now() < until)
-        std::this_thread::yield();
+    arena.execute([&] {
+      tbb::parallel_for(0, 2, [&](int) {
+        ++arrived;
+        const auto until = std::chrono::steady_clock::now() + std::chrono::seconds(30);
+        while (arrived.load() < 2 && std::chrono::steady_clock::now() < until)
+          std::this_thread::yield();
+      });
     });
     EXPECT_GT(counter.workers.load(), 0);
   }
