@@ -31,6 +31,15 @@ struct EccSums {
   double j[3] = {}, ji[3] = {}, jt[3] = {};  // Σ j, Σ j·I, Σ j·T ("in")
   double ji_out[3] = {};                     // Σ j·I over the other pixels
   double h[6] = {};                          // Σ j jᵀ over all pixels: 00 01 02 11 12 22
+
+  EccSums& operator+=(const EccSums& o) {
+    n += o.n, i += o.i, ii += o.ii, t += o.t, tt += o.tt, ti += o.ti;
+    for (int a = 0; a < 3; ++a)
+      j[a] += o.j[a], ji[a] += o.ji[a], jt[a] += o.jt[a], ji_out[a] += o.ji_out[a];
+    for (int a = 0; a < 6; ++a)
+      h[a] += o.h[a];
+    return *this;
+  }
 };
 
 // Bilinear sample of `img` at (x0 + ax, y0 + ay), pixels outside taken as 0 (BORDER_CONSTANT).
@@ -210,13 +219,7 @@ EccSums accumulate(const cv::Mat& tmpl, const cv::Mat& image, const cv::Mat& gra
     if (last > first)
       add_interior_run(trow + first, iv.data(), gxv.data(), gyv.data(), hat_x.data(), hat_y.data(),
                        last - first, r);
-    s.n += r.n;
-    s.i += r.i, s.ii += r.ii, s.t += r.t, s.tt += r.tt, s.ti += r.ti;
-    for (int a = 0; a < 3; ++a) {
-      s.j[a] += r.j[a], s.ji[a] += r.ji[a], s.jt[a] += r.jt[a], s.ji_out[a] += r.ji_out[a];
-    }
-    for (int a = 0; a < 6; ++a)
-      s.h[a] += r.h[a];
+    s += r;
   }
   return s;
 }
