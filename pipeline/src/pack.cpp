@@ -5,6 +5,8 @@
 #include <filesystem>
 #include <map>
 #include <set>
+#include <stdexcept>
+#include <tuple>
 
 #include <opencv2/imgproc.hpp>
 
@@ -562,30 +564,56 @@ std::string slab_path(const Config& config, std::int64_t bz) {
   return slice_output_path(config, "pack-slabs", "slab", int(bz), "vpkslab");
 }
 
-StageResult run_pack_shard(const Config& config, const StageOptions& options, const PackPlan& plan,
-                           SliceRange range) {
-  const int e = plan.wo.brick_edge;
-  const auto slabs = format::level0_slab_count(plan.wo);
-  // The shard's slabs: those whose first slice lies in [A, B).
-  const int s0 = (range.first + e - 1) / e, s1 = (range.last + e - 1) / e;
-  if (s0 == s1) {
-    StageResult none;
-    none.stage = "pack";
-    none.output = stage_dir(config, "pack-slabs");
-    return none;
-  }
+// The level-0 slabs [s0, s1) a shard of stack slices [A, B) packs: those whose first slice lies
+// in [A, B).
+std::pair<int, int> shard_slabs(int brick_edge, SliceRange range) {
+  const int e = brick_edge;
+  return {(range.first + e - 1) / e, (range.last + e - 1) / e};
+}
+
+// The pack-slabs stage run of a shard's slabs [s0, s1) (one unit per slab).
+std::unique_ptr<StageRun> slab_run(const Config& config, const StageOptions& options,
+                                   const PackPlan& plan, int s0, int s1) {
   StageOptions unit = options;
   unit.slices = cat(s0, ":", s1);
-  StageRun run(config, "pack-slabs", int(slabs), unit, kPackSections);
+  return std::make_unique<StageRun>(config, "pack-slabs", int(format::level0_slab_count(plan.wo)),
+                                    unit, kPackSections);
+}
+
+// Encodes slab bz from `buffers` (its slices, converted) and writes and records its slab file:
+// the one encoding of a pack shard, staged or streaming.
+void write_slab(const Config& config, const PackPlan& plan, StageRun& run, int bz,
+                const SliceBuffers& buffers, const std::string& input, std::uint64_t bytes) {
+  const std::string path = slab_path(config, bz);
+  SlabContent slab;
+  slab.bricks = format::encode_level0_slab(plan.wo, bz, buffers.slice(plan, 0), &slab.level1);
+  write_slab_file(
+      path,
+      slab_header_json(plan, format::stored_channels_for(plan.wo), bz, slab.bricks.size(), input),
+      slab);
+  if (test_pause_enabled()) test_pause_point(cat("slab:pack:", bz));  // test_pause.h
+  run.done(bz, input, {path}, bytes);
+}
+
+StageResult no_slab_result(const Config& config) {
+  StageResult none;
+  none.stage = "pack";
+  none.output = stage_dir(config, "pack-slabs");
+  return none;
+}
+
+StageResult run_pack_shard(const Config& config, const StageOptions& options, const PackPlan& plan,
+                           SliceRange range) {
+  const auto [s0, s1] = shard_slabs(plan.wo.brick_edge, range);
+  if (s0 == s1) return no_slab_result(config);
+  const std::unique_ptr<StageRun> run = slab_run(config, options, plan, s0, s1);
   // Slices are read and converted on this thread with OpenCV's pool: as many as --threads.
-  ScopedOpenCvThreads opencv_threads(run.threads());
-  const std::vector<format::ChannelSpec> stored = format::stored_channels_for(plan.wo);
+  ScopedOpenCvThreads opencv_threads(run->threads());
   std::set<std::uint16_t> ids_seen;
   for (int bz = s0; bz < s1; ++bz) {
-    const std::string path = slab_path(config, bz);
     const std::string input = slab_input(config, plan, bz);
-    if (run.up_to_date(bz, input, {path})) {
-      run.skip(bz);
+    if (run->up_to_date(bz, input, {slab_path(config, bz)})) {
+      run->skip(bz);
       continue;
     }
     auto [first, last] = slab_slices(plan, bz);
@@ -593,15 +621,11 @@ StageResult run_pack_shard(const Config& config, const StageOptions& options, co
     std::uint64_t bytes = 0;
     for (int k = first; k < last; ++k)
       bytes += read_pack_slice(config, plan, k, buffers, k - first, ids_seen);
-    SlabContent slab;
-    slab.bricks = format::encode_level0_slab(plan.wo, bz, buffers.slice(plan, 0), &slab.level1);
-    write_slab_file(path, slab_header_json(plan, stored, bz, slab.bricks.size(), input), slab);
-    if (test_pause_enabled()) test_pause_point(cat("slab:pack:", bz));  // test_pause.h
-    run.done(bz, input, {path}, bytes);
+    write_slab(config, plan, *run, bz, buffers, input, bytes);
   }
-  run.set_report("slabs", {s0, s1});
-  run.set_report("slices", {range.first, range.last});
-  return run.finish(run.dir());
+  run->set_report("slabs", {s0, s1});
+  run->set_report("slices", {range.first, range.last});
+  return run->finish(run->dir());
 }
 
 StageResult run_pack_whole(const Config& config, const StageOptions& options,
@@ -711,7 +735,7 @@ StageResult run_pack_merge(const Config& config, const StageOptions& options) {
   return run.finish(config.output);
 }
 
-// ---- PackStream: the whole pack fed from memory (the streaming vispack-run) ----
+// ---- PackStream: the pack fed from memory (the streaming vispack-run) ----
 
 struct PackStream::Slice {
   SliceBuffers buffers;
@@ -723,28 +747,58 @@ struct PackStream::Slice {
 struct PackStream::Impl {
   const Config& config;
   PackPlan plan;
-  StageRun run;
-  std::unique_ptr<format::Writer> writer;
+  std::unique_ptr<StageRun> run;
   std::set<std::uint16_t> ids_seen;
   std::uint64_t bytes = 0;
   int appended = 0;
-  Impl(const Config& c, const StageOptions& options, const StageOptions& unit)
-      : config(c), plan(plan_pack(c, options)), run(c, "pack", 1, unit, kPackSections) {}
+  // The whole stack: the format Writer.
+  std::unique_ptr<format::Writer> writer;
+  // A shard (options.slices a partial range): the slices appended are range.first, ...; slabs
+  // [s0, s1) are gathered in `slab` and encoded to slab files as they complete.
+  bool shard = false;
+  SliceRange range;
+  int s0 = 0, s1 = 0;
+  std::unique_ptr<SliceBuffers> slab;
+  int slab_slices_held = 0;  // slices `slab` was sized for
+  std::uint64_t slab_bytes = 0;
+  Impl(const Config& c, const StageOptions& options) : config(c), plan(plan_pack(c, options)) {}
 };
 
 bool PackStream::streamable(const Config& config) {
   return !config.pack.crop_margin_px && (!config.seg || !config.seg->palette.empty());
 }
 
+bool PackStream::streamable(const Config& config, int stack_slices, SliceRange range) {
+  if (!streamable(config)) return false;
+  if (range.first == 0 && range.last == stack_slices) return true;
+  const int e = config.pack.brick_edge;
+  const auto [s0, s1] = shard_slabs(e, range);
+  return s0 < s1 && std::min(stack_slices, s1 * e) <= range.last;
+}
+
 PackStream::PackStream(const Config& config, const StageOptions& options) {
   if (!streamable(config))
     throw UsageError("the pack needs every slice first (pack.crop_margin_px or no palette)");
+  impl_ = std::make_unique<Impl>(config, options);
+  Impl& d = *impl_;
+  d.range = {0, d.plan.n};
+  if (!options.slices.empty()) d.range = parse_slice_range(options.slices, d.plan.n);
+  d.shard = d.range.first != 0 || d.range.last != d.plan.n;
+  if (d.shard) {
+    if (!streamable(config, d.plan.n, d.range))
+      throw UsageError(cat("--slices ", options.slices, ": the pack shard's slabs (",
+                           config.pack.brick_edge,
+                           " slices each) do not end inside the range: give whole slabs"));
+    std::tie(d.s0, d.s1) = shard_slabs(d.plan.wo.brick_edge, d.range);
+    d.run = slab_run(config, options, d.plan, d.s0, d.s1);
+    return;
+  }
   StageOptions unit = options;
   unit.slices.clear();
-  impl_ = std::make_unique<Impl>(config, options, unit);
-  impl_->run.remove_stale_temporaries_of(config.output);
+  d.run = std::make_unique<StageRun>(config, "pack", 1, unit, kPackSections);
+  d.run->remove_stale_temporaries_of(config.output);
   make_directories(fs::path(config.output).parent_path().string());
-  impl_->writer = std::make_unique<format::Writer>(config.output, impl_->plan.wo);
+  d.writer = std::make_unique<format::Writer>(config.output, d.plan.wo);
 }
 
 PackStream::~PackStream() = default;
@@ -761,24 +815,67 @@ PackStream::SlicePtr PackStream::convert(Intermediates in) const {
 
 void PackStream::append(SlicePtr slice) {
   Impl& d = *impl_;
-  d.writer->append_slice(slice->buffers.slice(d.plan, 0));
-  if (test_pause_enabled()) test_pause_point(cat("append:pack:", d.appended));  // test_pause.h
+  const int k = d.range.first + d.appended;
+  if (k >= d.range.last) throw std::logic_error("PackStream::append: more slices than the range");
   ++d.appended;
   d.ids_seen.insert(slice->ids.begin(), slice->ids.end());
   d.bytes += slice->bytes;
-  d.run.add_bytes(0);
+  if (!d.shard) {
+    d.writer->append_slice(slice->buffers.slice(d.plan, 0));
+    if (test_pause_enabled()) test_pause_point(cat("append:pack:", k));  // test_pause.h
+    d.run->add_bytes(0);
+    return;
+  }
+  // A shard: slice k into its slab's buffers; a complete slab is encoded unless up to date.
+  const int bz = k / d.plan.wo.brick_edge;
+  if (bz < d.s0 || bz >= d.s1) return;  // before the shard's first slab start
+  const auto [first, last] = slab_slices(d.plan, bz);
+  if (k == first) {
+    if (!d.slab || d.slab_slices_held != last - first) {
+      d.slab.reset();
+      d.slab = std::make_unique<SliceBuffers>(d.plan, last - first);
+      d.slab_slices_held = last - first;
+    }
+    d.slab_bytes = 0;
+  }
+  const std::size_t plane = std::size_t(d.plan.out_size.width) * d.plan.out_size.height;
+  const std::size_t z = std::size_t(k - first);
+  const SliceBuffers& in = slice->buffers;
+  SliceBuffers& out = *d.slab;
+  std::copy(in.rgba.begin(), in.rgba.end(), out.rgba.begin() + std::ptrdiff_t(plane * 4 * z));
+  std::copy(in.ct.begin(), in.ct.end(), out.ct.begin() + std::ptrdiff_t(plane * z));
+  std::copy(in.labels.begin(), in.labels.end(), out.labels.begin() + std::ptrdiff_t(plane * z));
+  d.slab_bytes += slice->bytes;
+  slice.reset();
+  if (k != last - 1) return;
+  // The slab's masks and labels are written: its input fingerprint is final.
+  const std::string input = slab_input(d.config, d.plan, bz);
+  if (d.run->up_to_date(bz, input, {slab_path(d.config, bz)})) {
+    d.run->skip(bz);
+    return;
+  }
+  write_slab(d.config, d.plan, *d.run, bz, *d.slab, input, d.slab_bytes);
 }
 
 StageResult PackStream::finish() {
   Impl& d = *impl_;
+  if (d.appended != d.range.size())
+    throw std::logic_error(
+        cat("PackStream::finish: ", d.appended, " of ", d.range.size(), " slices appended"));
+  if (d.shard) {
+    d.slab.reset();
+    d.run->set_report("slabs", {d.s0, d.s1});
+    d.run->set_report("slices", {d.range.first, d.range.last});
+    return d.run->finish(d.run->dir());
+  }
   d.writer->finish();
   d.writer.reset();
   // The masks and labels were written during the stream: the fingerprint a later whole pack
   // computes is the one of the work folder now, not the one plan_pack saw at the start.
   d.plan.input = pack_input_fingerprint(d.config, d.plan.inputs);
-  d.run.done(0, d.plan.input, {d.config.output}, d.bytes);
-  report_pack(d.run, d.config, d.plan, d.ids_seen, d.bytes);
-  return d.run.finish(d.config.output);
+  d.run->done(0, d.plan.input, {d.config.output}, d.bytes);
+  report_pack(*d.run, d.config, d.plan, d.ids_seen, d.bytes);
+  return d.run->finish(d.config.output);
 }
 
 }  // namespace vispack::pipeline

@@ -245,15 +245,14 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
       st.reference_slice = 0;
     }
     st.ct_to_rgb = ct_to_rgb;
-    // Rewrite only on change, so later stages (whose staleness follows this file) stay current.
+    // Rewrite only on change, so later stages (whose staleness follows this file's identity)
+    // stay current. Compared in memory: shards that solve at the same time (each register run
+    // that finds every record solves) find the same text and leave the file alone; a shared
+    // temporary name would let one remove the other's copy mid-compare, and the rewrite that
+    // followed made every other shard's masks stale.
     bool same = false;
     try {
-      if (fs::exists(tpath)) {
-        const std::string tmp = tpath + ".compare";
-        write_transforms(tmp, st);
-        same = read_file(tmp) == read_file(tpath);
-        fs::remove(tmp);
-      }
+      same = fs::exists(tpath) && read_file(tpath) == transforms_text(st);
     } catch (const std::exception&) {
       same = false;
     }

@@ -30,15 +30,25 @@ std::vector<StageResult> run_pipeline(const Config& config, const RunOptions& op
           cat("unknown stage '", name, "' (stages: register, mask, labels, pack, vdb)"));
     return int(it - names.begin());
   };
-  const int from = position(options.from, 0), to = position(options.to, int(names.size()) - 1);
+  const int pack_at = position("pack", 0), vdb_at = position("vdb", 0);
+  const int from = position(options.from, 0);
+  // A shard stops at pack unless told otherwise (its vdb part needs the merged file).
+  const int to = position(options.to, options.slices.empty() || from > pack_at ? vdb_at : pack_at);
   if (from > to) throw UsageError(cat("--from ", options.from, " comes after --to ", options.to));
   StageOptions stage_options;
   stage_options.force = options.force;
   stage_options.quiet = options.quiet;
   stage_options.threads = options.threads;
+  stage_options.slices = options.slices;
+  const bool vdb_enabled = config.vdb.enabled && !config.vdb_output.empty();
+  if (!options.slices.empty() && from <= pack_at && to >= vdb_at && vdb_enabled)
+    throw UsageError(
+        cat("--slices ", options.slices,
+            ": a shard's pack writes slab files and the OpenVDB shards read the merged "
+            "file: run up to --to pack, then vispack-pack --merge, then --from vdb"));
   std::vector<StageResult> results;
   // Streaming (stream.h): mask, labels and pack in one pass, when the range holds all three.
-  const int mask_at = position("mask", 0), pack_at = position("pack", 0);
+  const int mask_at = position("mask", 0);
   const bool stream = !options.staged && from <= mask_at && to >= pack_at;
   for (int i = from; i <= to; ++i) {
     const std::string& name = names[i];

@@ -78,32 +78,33 @@ void ordered_pipeline(int n, int threads, int window, const std::function<SliceP
 }  // namespace
 
 std::vector<StageResult> run_stream(const Config& config, const StageOptions& options) {
-  if (!options.slices.empty())
-    throw UsageError("the streaming run covers the whole stack (use the stage tools for --slices)");
   const StackInputs inputs = read_stack_inputs(config);
   const int n = int(inputs.rgb.size());
   const cv::Size size = inputs.size();
   MaskStageJob mask(config, inputs, options);
+  const SliceRange range = mask.run().range();  // options.slices, or the whole stack
   std::unique_ptr<LabelsStageJob> labels;
   if (config.seg) labels = std::make_unique<LabelsStageJob>(config, options);
   const int threads = mask.run().threads();
   ScopedOpenCvThreads opencv_threads(1);
 
-  // What is up to date, decided before anything is written.
-  std::vector<char> mask_fresh(std::size_t(n), 0), labels_fresh(std::size_t(n), 1);
+  // What is up to date, decided before anything is written (index i = slice range.first + i).
+  const int count = range.size();
+  std::vector<char> mask_fresh(std::size_t(count), 0), labels_fresh(std::size_t(count), 1);
   bool all_fresh = true;
-  for (int k = 0; k < n; ++k) {
-    mask_fresh[std::size_t(k)] = mask.up_to_date(k);
-    if (labels) labels_fresh[std::size_t(k)] = labels->up_to_date(k);
-    all_fresh = all_fresh && mask_fresh[std::size_t(k)] && labels_fresh[std::size_t(k)];
+  for (int i = 0; i < count; ++i) {
+    mask_fresh[std::size_t(i)] = mask.up_to_date(range.first + i);
+    if (labels) labels_fresh[std::size_t(i)] = labels->up_to_date(range.first + i);
+    all_fresh = all_fresh && mask_fresh[std::size_t(i)] && labels_fresh[std::size_t(i)];
   }
   std::unique_ptr<PackStream> pack;
-  if (!all_fresh && PackStream::streamable(config))
+  if (!all_fresh && PackStream::streamable(config, n, range))
     pack = std::make_unique<PackStream>(config, options);
 
   // Slice k: read once, computed once, written as the stages write it, converted for the pack.
-  auto produce = [&](int k) -> SlicePtr {
-    const bool mask_done = mask_fresh[std::size_t(k)], labels_done = labels_fresh[std::size_t(k)];
+  auto produce = [&](int i) -> SlicePtr {
+    const int k = range.first + i;
+    const bool mask_done = mask_fresh[std::size_t(i)], labels_done = labels_fresh[std::size_t(i)];
     Intermediates in;
     if (mask_done) {
       mask.skip(k);
@@ -134,7 +135,7 @@ std::vector<StageResult> run_stream(const Config& config, const StageOptions& op
     if (pack) pack->append(std::move(slice));
   };
   try {
-    ordered_pipeline(n, std::max(1, std::min(threads, n)), 2 * threads, produce, consume);
+    ordered_pipeline(count, std::max(1, std::min(threads, count)), 2 * threads, produce, consume);
   } catch (...) {
     // The slices finished before the error stay recorded: a rerun resumes after them.
     mask.run().flush();

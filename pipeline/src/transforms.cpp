@@ -202,7 +202,7 @@ StackTransforms read_transforms(const std::string& path) {
   return t;
 }
 
-void write_transforms(const std::string& path, const StackTransforms& t) {
+std::string transforms_text(const StackTransforms& t) {
   nlohmann::json j = t.extra.is_object() ? t.extra : nlohmann::json::object();
   j["width"] = t.width;
   j["height"] = t.height;
@@ -230,8 +230,12 @@ void write_transforms(const std::string& path, const StackTransforms& t) {
                       {"dx_px", t.ct_to_rgb->dx_px},
                       {"dy_px", t.ct_to_rgb->dy_px}};
   }
+  return j.dump(2) + "\n";
+}
+
+void write_transforms(const std::string& path, const StackTransforms& t) {
   make_directories(fs::path(path).parent_path().string());
-  write_file_atomic(path, j.dump(2) + "\n");
+  write_file_atomic(path, transforms_text(t));
 }
 
 }  // namespace vispack::pipeline

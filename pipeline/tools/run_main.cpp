@@ -11,8 +11,8 @@ int main(int argc, char** argv) {
   using namespace vispack;
   return run_main("vispack-run", argc, argv, [](Args& args) {
     args.describe(
-        "CONFIG [--from STAGE] [--to STAGE] [--force] [--quiet] [--threads N] [--staged] "
-        "[--plan]",
+        "CONFIG [--from STAGE] [--to STAGE] [--slices A:B] [--force] [--quiet] [--threads N] "
+        "[--staged] [--plan]",
         "Runs register -> mask -> labels -> pack -> vdb on the config's slice folders "
         "(labels only with a seg section, vdb only when enabled), skipping slices and "
         "stages whose outputs are up to date with their inputs and config, and prints "
@@ -21,7 +21,15 @@ int main(int argc, char** argv) {
         "the same files and manifests as the stages run one by one); vdb follows.");
     pipeline::RunOptions options;
     options.from = args.option("--from", "STAGE", "first stage to run", "register");
-    options.to = args.option("--to", "STAGE", "last stage to run", "vdb");
+    options.to =
+        args.option("--to", "STAGE", "last stage to run (default: vdb; with --slices: pack)")
+            .value_or("");
+    options.slices = args.option("--slices", "A:B",
+                                 "one shard of stack indices [A, B) for a cluster "
+                                 "(scripts/vispack-slurm): every stage runs on the shard, the pack "
+                                 "writes the slab files of the slabs that start in it (merge them "
+                                 "with vispack-pack --merge; default: the whole stack)")
+                         .value_or("");
     options.force = args.flag("--force", "recompute every stage in range");
     options.quiet = args.flag("--quiet", "no progress output");
     options.staged = args.flag("--staged",

@@ -61,7 +61,10 @@ dry_chain() {
 # 3 shards, 3 slabs of 8 slices: whole-slab shards, the pack shard at the end of the per-slice
 # job (one dependent step less).
 dry_chain 3 "01-register-measure.sh 02-register-solve.sh 03-slices.sh 04-pack-merge.sh 05-vdb.sh " 3
-grep -q 'vispack-pack --slices \$a:\$b' "$tmp/run/03.sh" || fail "the per-slice job does not end with the pack shard"
+# One process per shard: register, the streaming mask + labels + pack pass.
+grep -q 'vispack-run .* --slices \$a:\$b --from register --to pack ' "$tmp/run/03.sh" ||
+  fail "the per-slice job is not one vispack-run --slices A:B --from register --to pack"
+[[ $(grep -c "^\(exec \)\?$bin/" "$tmp/run/03.sh") == 1 ]] || fail "the per-slice job runs more than one process"
 # The OpenVDB export in three parts, one per shard, and no whole file.
 parts=$(cd "$tmp/my dir/out" && ls -- *.slices-*.vdb 2>/dev/null | tr '\n' ' ')
 [[ $parts == "volume.slices-0000-0008.vdb volume.slices-0008-0016.vdb volume.slices-0016-0024.vdb " ]] ||
@@ -77,6 +80,8 @@ parts=$(cd "$tmp/my dir/out" && ls -- *.slices-*.vdb 2>/dev/null | tr '\n' ' ')
 # 4 shards, 3 slabs: shards of the slices (i*S/N), the pack as its own step.
 dry_chain 4 "01-register-measure.sh 02-register-solve.sh 03-slices.sh 04-pack.sh 05-pack-merge.sh 06-vdb.sh " 4
 grep -q 'vispack-pack' "$tmp/run/03.sh" && fail "4 shards of 3 slabs: the pack joined the per-slice job"
+grep -q 'vispack-run .* --slices \$a:\$b --from register --to labels ' "$tmp/run/03.sh" ||
+  fail "4 shards: the per-slice job is not one vispack-run --slices A:B --to labels"
 parts=$(cd "$tmp/my dir/out" && ls -- *.slices-*.vdb 2>/dev/null | tr '\n' ' ')
 [[ $parts == "volume.slices-0000-0006.vdb volume.slices-0006-0012.vdb volume.slices-0012-0018.vdb volume.slices-0018-0024.vdb " ]] ||
   fail "OpenVDB parts with 4 shards: '$parts'"

@@ -11,6 +11,7 @@
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
 #include "vispack/phantom/phantom.h"
+#include "vispack/pipeline/pack.h"
 #include "vispack/pipeline/register_stage.h"
 #include "vispack/pipeline/run.h"
 #include "vispack/pipeline/stream.h"
@@ -175,4 +176,64 @@ TEST(Stream, ChangedInputOrSectionRerunsWhatDependsOnIt) {
   EXPECT_EQ(r["mask"].processed, kSlices);
   EXPECT_EQ(r["labels"].processed, kSlices);
   EXPECT_EQ(r["pack"].processed, 1);
+}
+
+// vispack-run --slices A:B (a cluster's per-slice job): register, then the streaming pass over
+// the shard, whose pack writes the slab files of the slabs that start in it. Shards [12, 24) and
+// [0, 12) of 24 slices in 8-slice slabs: the first streams slab 2 (it ends inside the range); the
+// second's slab 1 ([8, 16)) ends outside it, so that shard streams masks and labels and then packs
+// slabs 0 and 1 from the work folder (slices 12..15 are there: the other shard ran first). The
+// merge gives the whole-stack staged file byte for byte, and every mask and label PNG equals the
+// staged run's; a second pass over each shard recomputes nothing.
+TEST(Stream, ShardsThenMergeGiveTheWholeStackFile) {
+  test::TempDir staged_dir, dir;
+  const Config staged = make_case(staged_dir, nlohmann::json::object());
+  const Config config = make_case(dir, nlohmann::json::object());
+  run(staged, true, 1);
+  EXPECT_TRUE(PackStream::streamable(config, kSlices, {12, 24}));
+  EXPECT_FALSE(PackStream::streamable(config, kSlices, {0, 12}));
+  EXPECT_FALSE(PackStream::streamable(config, kSlices, {9, 15}));  // starts no slab
+  EXPECT_TRUE(PackStream::streamable(config, kSlices, {0, kSlices}));
+  // The cluster's register-measure shards and solve (vispack-slurm) first.
+  StageOptions quiet;
+  quiet.quiet = true;
+  for (const char* range : {"0:12", "12:24", "0:0"}) {
+    quiet.slices = range;
+    run_register_stage(config, quiet);
+  }
+  quiet.slices.clear();
+  std::map<std::string, std::map<std::string, StageResult>> shard;
+  for (const char* range : {"12:24", "0:12"}) {
+    RunOptions options;
+    options.quiet = true;
+    options.threads = 3;  // slices finish out of order
+    options.slices = range;
+    for (const auto& r : run_pipeline(config, options))
+      shard[range][r.stage] = r;
+  }
+  EXPECT_EQ(shard["12:24"]["mask"].processed, 12);
+  EXPECT_EQ(shard["12:24"]["labels"].processed, 12);
+  EXPECT_EQ(shard["12:24"]["pack-slabs"].processed, 1);  // slab 2
+  EXPECT_EQ(shard["0:12"]["pack-slabs"].processed, 2);   // slabs 0 and 1
+  EXPECT_EQ(shard["0:12"].count("vdb"), 0u) << "a shard stops at pack";
+  EXPECT_FALSE(fs::exists(config.output)) << "a shard wrote the packed file";
+  run_pack_merge(config, quiet);
+  expect_same_products(staged, config);
+  for (const char* range : {"12:24", "0:12"}) {
+    RunOptions options;
+    options.quiet = true;
+    options.slices = range;
+    for (const auto& r : run_pipeline(config, options))
+      EXPECT_EQ(r.processed, 0) << range << ": " << r.stage << " recomputed";
+  }
+}
+
+TEST(Stream, ShardRangeHoldingPackAndVdbIsRefused) {
+  test::TempDir dir;
+  const Config config = make_case(dir, {{"vdb", {{"enabled", true}}}});
+  RunOptions options;
+  options.quiet = true;
+  options.slices = "0:8";
+  options.to = "vdb";
+  EXPECT_THROW(run_pipeline(config, options), UsageError);
 }

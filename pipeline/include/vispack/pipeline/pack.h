@@ -62,12 +62,17 @@ StageResult run_pack_stage(const Config& config, const StageOptions& options);
 // date, naming it and the shard to rerun), FormatError (a corrupt slab file), IoError.
 StageResult run_pack_merge(const Config& config, const StageOptions& options);
 
-// The whole-stack pack fed from memory, one slice at a time in z order: the streaming vispack-run
-// (stream.h). Same plan, per-slice conversion, Writer and pack manifest record as the whole-stack
-// run_pack_stage, so the file is byte-identical and a later vispack-pack finds it up to date.
+// The pack fed from memory, one slice at a time in z order: the streaming vispack-run (stream.h).
+// Whole stack (options.slices empty or the whole stack): same plan, per-slice conversion, Writer
+// and pack manifest record as the whole-stack run_pack_stage, so the file is byte-identical and a
+// later vispack-pack finds it up to date. A shard (options.slices = A:B, a partial range, whose
+// slabs all end inside it: streamable(config, S, range)): the slices A, A+1, ... are appended;
+// each slab whose first slice lies in [A, B) is gathered (one slab of brick_edge slices held) and,
+// once complete, encoded and written as run_pack_stage's shard writes it (same slab file, same
+// pack-slabs record; skipped when that slab file is up to date), ready for run_pack_merge.
 // Thread-safety: convert() may be called concurrently; append() and finish() from one thread at a
 // time. Destroyed without finish(), it leaves config.output untouched (the Writer's temporary is
-// removed) and records nothing.
+// removed) and records nothing more (a shard keeps the slab files it finished).
 class PackStream {
  public:
   // False where the plan needs every slice's intermediates before the first one is packed:
@@ -75,8 +80,12 @@ class PackStream {
   // palette (the label table is the labels stage report's "ids_present"). The streaming run then
   // writes masks and labels first and packs from the work folder (run_pack_stage).
   static bool streamable(const Config& config);
-  // Plans the pack and opens the Writer. Throws UsageError when !streamable(config); otherwise
-  // as run_pack_stage.
+  // streamable(config) for the shard `range` of a stack of `stack_slices` slices: also false when
+  // the range starts no slab, or when its last slab ends after range.last (that slab needs
+  // another shard's slices: the shard's pack then runs after every shard, as vispack-pack).
+  static bool streamable(const Config& config, int stack_slices, SliceRange range);
+  // Plans the pack and opens the Writer (whole stack) or the pack-slabs stage run (a shard).
+  // Throws UsageError when not streamable (above); otherwise as run_pack_stage.
   PackStream(const Config& config, const StageOptions& options);
   ~PackStream();
   PackStream(const PackStream&) = delete;
@@ -91,10 +100,14 @@ class PackStream {
   // Converts the intermediates of one slice, as read_intermediates would return them (use
   // clear_outside_body), to the packed grid.
   SlicePtr convert(Intermediates in) const;
-  // Appends the next slice (z order: the k-th call appends stack slice k).
+  // Appends the next slice (z order: the k-th call appends stack slice first + k, first = 0 or
+  // the shard's A). A shard encodes and writes a slab when its last slice is appended: its masks
+  // and labels must be written and recorded by then (the slab file's input fingerprint).
   void append(SlicePtr slice);
-  // Commits the file and records the pack unit with the input fingerprint of the work folder as
-  // it is now (call it after every mask and label file is written and recorded).
+  // Whole stack: commits the file and records the pack unit with the input fingerprint of the
+  // work folder as it is now (call it after every mask and label file is written and recorded).
+  // A shard: writes its pack-slabs report. Throws std::logic_error unless every slice of the
+  // range was appended.
   StageResult finish();
 
  private:

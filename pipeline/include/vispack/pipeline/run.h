@@ -26,15 +26,21 @@ const std::vector<std::string>& pipeline_stage_names();
 
 struct RunOptions {
   std::string from;    // first stage to run (empty: "register")
-  std::string to;      // last stage to run (empty: "vdb")
+  std::string to;      // last stage to run (empty: "vdb"; with `slices`, "pack" unless from is vdb)
   bool force = false;  // recompute every stage in [from, to]
   bool quiet = false;
   int threads = 0;
   bool staged = false;  // one stage after another instead of the streaming pass
+  // "A:B": a shard of stack indices (every stage in range runs with --slices A:B, the streaming
+  // pass over [A, B) only; stream.h). A shard's pack writes slab files, not the packed file, so
+  // the range may not hold both pack and an enabled vdb (the vdb shards read the merged file:
+  // run vispack-pack --merge between them). Empty: the whole stack.
+  std::string slices;
 };
 
 // Runs the stages [from, to] that the config enables. Throws UsageError for an unknown stage
-// name or from after to; otherwise whatever a stage throws (the stage's own errors).
+// name, from after to, or a shard whose range holds pack and vdb; otherwise whatever a stage throws
+// (the stage's own errors).
 std::vector<StageResult> run_pipeline(const Config& config, const RunOptions& options);
 
 }  // namespace vispack::pipeline

@@ -2,14 +2,15 @@
 // stack, after the register stage (which needs the whole stack for its global solve) and before
 // the vdb stage (a separate step).
 //
-// Each stack slice k is read once (input colour, CT slice, segmentation slice); its registered
-// colour and resampled CT are computed once; its mask (mask.h) and labels (labels.h) are computed
-// and written as vispack-mask and vispack-labels write them (mask PNG, overlay, label PNG; CT
-// only with work.write_ct), recorded in those stages' manifests (MaskStageJob, LabelsStageJob), and
-// the slice is converted and handed to the pack Writer (PackStream) in z order through a reorder
-// queue. Workers: options.threads (resolve_threads) take slices in stack order; at most
-// 2 x threads slices are claimed and not yet appended, so memory is bounded by that many slices'
-// images plus the Writer's slab (one brick row).
+// Each stack slice k (of the whole stack, or of a shard: below) is read once (input colour, CT
+// slice, segmentation slice); its registered colour and resampled CT are computed once; its mask
+// (mask.h) and labels (labels.h) are computed and written as vispack-mask and vispack-labels write
+// them (mask PNG, overlay, label PNG; CT only with work.write_ct), recorded in those stages'
+// manifests (MaskStageJob, LabelsStageJob), and the slice is converted and handed to the pack
+// Writer (PackStream) in z order through a reorder queue. Workers: options.threads
+// (resolve_threads) take slices in stack order; at most 2 x threads slices are claimed and not yet
+// appended, so memory is bounded by that many slices' images plus the Writer's slab (one brick
+// row).
 //
 // Same results as the staged stages: the packed file is byte-identical to vispack-mask,
 // vispack-labels and vispack-pack run one after another, and their manifests record the same
@@ -31,10 +32,15 @@
 
 namespace vispack::pipeline {
 
-// Runs mask, labels (with a seg section) and pack over the whole stack as described above and
-// returns their results in that order. options.slices must be empty (the pack is one file);
-// options.force recomputes every slice. Throws what the stages throw (naming the file or slice);
-// on an error the pack output is left as it was and the slices finished so far stay recorded.
+// Runs mask, labels (with a seg section) and pack over the whole stack, or over the shard
+// options.slices = "A:B", as described above and returns their results in that order;
+// options.force recomputes every slice. A shard writes the masks and labels of [A, B) (the
+// shard manifests of vispack-mask and vispack-labels --slices A:B) and the pack's slab files of
+// the slabs that start in [A, B) (vispack-pack --slices A:B; PackStream): streamed when those
+// slabs end inside the range (a cluster's whole-slab shards), else read back from the work folder
+// after the pass, so their slices beyond B must be there already. Throws what the stages throw
+// (naming the file or slice); on an error the pack output is left as it was and the slices (and
+// a shard's slabs) finished so far stay recorded.
 std::vector<StageResult> run_stream(const Config& config, const StageOptions& options);
 
 }  // namespace vispack::pipeline

@@ -116,6 +116,8 @@ struct StackTransforms {
 
 // Reads transforms.json. Throws FormatError naming the file and key (IoError if unreadable).
 StackTransforms read_transforms(const std::string& path);
+// The text write_transforms writes (JSON, 2-space indent, final newline).
+std::string transforms_text(const StackTransforms& transforms);
 // Writes transforms.json atomically (IoError).
 void write_transforms(const std::string& path, const StackTransforms& transforms);
 
