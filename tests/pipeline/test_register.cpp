@@ -574,3 +574,39 @@ TEST(RegisterStage, OverlayFromTheKeptPictureMatchesTheFullSizePath) {
               full(cv::Rect(0, 0, full.cols - 1, full.rows)), shifted);
   EXPECT_GT(cv::mean(shifted)[0], 2.0 * cv::mean(diff)[0] + 0.5);
 }
+
+// A sharded run keeps each slice's overlay picture with its pair record; the shard run after the
+// solve (a cluster's per-slice job, another process) draws the QC overlay from it, without
+// decoding the full-size slice: slice 3's file is overwritten with garbage of the same size and
+// mtime (its identity, so its record stays valid) and the overlay is still drawn, byte-identical
+// to the one an unsharded run draws from its in-memory picture. A picture that is not the one
+// recorded (rewritten: new identity) is not used: the run decodes the slice and fails on it.
+TEST(RegisterStage, ShardDrawsTheOverlayFromTheRecordedPicture) {
+  TempDir whole_dir, dir;
+  const vp::Config whole = vispack::test::make_phantom_case(whole_dir.path(), "tiny", 3, 12);
+  const vp::Config config = vispack::test::make_phantom_case(dir.path(), "tiny", 3, 12);
+  auto options = vispack::test::quiet_stage_options();
+  vp::run_register_stage(whole, options);
+  for (const char* range : {"0:6", "6:12", "0:0"}) {
+    options.slices = range;
+    vp::run_register_stage(config, options);
+  }
+  const std::string picture = vp::slice_output_path(config, "register", "pairs/picture", 3, "png");
+  ASSERT_TRUE(std::filesystem::exists(picture));
+  const std::string overlay = vp::stage_dir(config, "register") + "/qc/overlay_0003.png";
+  std::filesystem::remove(overlay);
+  const std::string slice = vp::stack_slices(config)[3].path;
+  const auto mtime = std::filesystem::last_write_time(slice);
+  const std::string original = vispack::read_file(slice);
+  vispack::write_file_atomic(slice, std::string(original.size(), 'x'));
+  std::filesystem::last_write_time(slice, mtime);
+  options.slices = "0:6";
+  vp::run_register_stage(config, options);
+  ASSERT_TRUE(std::filesystem::exists(overlay));
+  EXPECT_EQ(vispack::read_file(overlay),
+            vispack::read_file(vp::stage_dir(whole, "register") + "/qc/overlay_0003.png"));
+  // The picture rewritten (same pixels, new identity): no longer the recorded one.
+  vispack::write_file_atomic(picture, vispack::read_file(picture));
+  std::filesystem::remove(overlay);
+  EXPECT_THROW(vp::run_register_stage(config, options), vispack::InputError);
+}

@@ -12,6 +12,10 @@ namespace vispack::pipeline {
 // vispack-register: reads the rgb stack (and the CT if configured), writes
 //   <work>/register/pairs/pairs_NNNN.json   per-slice record: pair edges, fiducials, CT anchor
 //                                           (the sharded part)
+//   <work>/register/pairs/picture_NNNN.png  a sharded run's overlay picture of the slice
+//                                           (≤ 512 px, its identity in the record): the QC
+//                                           overlay after the solve warps it instead of the
+//                                           full-size slice
 //   <work>/register/transforms.json         the solved transforms ("frame": "ct" with CT; the
 //                                           defined ct_to_rgb; per-slice anchor confidence and
 //                                           residual)
@@ -28,7 +32,8 @@ namespace vispack::pipeline {
 // finishes last, or the unsharded run) solves and writes transforms.json; a shard writes
 // registered slices and QC overlays of its range only when transforms.json covers the whole
 // stack. So a scheduler runs all shards, then runs the shards (or one unsharded run) again: the
-// second pass reuses the records and only solves and resamples.
+// second pass reuses the records and only solves and resamples. Shards that solve at the same
+// time find the same transforms and leave transforms.json as it is (compared in memory).
 StageResult run_register_stage(const Config& config, const StageOptions& options);
 
 }  // namespace vispack::pipeline
