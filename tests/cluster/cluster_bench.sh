@@ -87,6 +87,9 @@ for rep in $(seq "$reps"); do
   for w in 1 2; do
     rm -rf "$tmp/w$w"
     cp -a "$tmp/vhp" "$tmp/w$w"
+    # The copy's dirty pages written back now, not by the kernel's flusher during the chain (on
+    # two cores it takes the core a one-worker chain leaves free, and a two-worker chain's).
+    sync
     t=$(now)
     "$root/scripts/vispack-slurm" "$tmp/w$w/config.json" --shards "$w" --bin "$bin" \
       --jobs-dir "$tmp/w$w/jobs" --wait --poll 0.5 >"$tmp/w$w.out" 2>&1 || { cat "$tmp/w$w.out"; exit 1; }
