@@ -136,7 +136,46 @@ void check_png_complete(const std::string& path, std::uint64_t size) {
   throw InputError(cat(path, ": PNG is truncated (", size, " bytes, chunks end without IEND)"));
 }
 
-cv::Mat read_oiio(const std::string& path) {
+// A BMP's size from its header, checked against the limits before OpenImageIO opens it: its BMP
+// reader decodes a run-length-encoded image inside open(), sized by the header's width and
+// height, so a hostile header made it allocate (or throw std::length_error out of) gigabytes
+// before any size could be checked (found by fuzz_raw_slice). Reads 30 bytes.
+void check_bmp_header(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  unsigned char h[30] = {};
+  in.read(reinterpret_cast<char*>(h), sizeof h);
+  const std::streamsize got = in.gcount();
+  if (got < 2 || h[0] != 'B' || h[1] != 'M') return;  // not a BMP
+  if (got < 26) throw InputError(cat(path, ": BMP header is truncated (", got, " bytes)"));
+  auto u16 = [&](int at) { return std::uint32_t(h[at]) | std::uint32_t(h[at + 1]) << 8; };
+  auto u32 = [&](int at) { return u16(at) | u16(at + 2) << 16; };
+  const std::uint32_t dib = u32(14);
+  std::int64_t width = 0, height = 0;
+  if (dib == 12) {  // BITMAPCOREHEADER: 16-bit sizes
+    width = u16(18);
+    height = u16(20);
+  } else {
+    width = std::int32_t(u32(18));
+    height = std::int32_t(u32(22));
+    if (height < 0) height = -height;  // top-down rows
+  }
+  check_size(path, width, height, 4, 1);
+}
+
+// OpenImageIO's readers can throw C++ exceptions of their own (std::length_error, bad_alloc)
+// on hostile files; they become InputError naming the file (issue 7: one line, the file named).
+template <class F>
+auto guard_decoder(const std::string& path, F&& f) -> decltype(f()) {
+  try {
+    return f();
+  } catch (const Error&) {
+    throw;
+  } catch (const std::exception& e) {
+    throw InputError(cat(path, ": cannot read image (the decoder failed: ", e.what(), ")"));
+  }
+}
+
+cv::Mat read_oiio_unguarded(const std::string& path) {
   OIIO::ImageSpec config;
   config.attribute("oiio:UnassociatedAlpha", 1);  // keep colour as stored next to an alpha
   auto input = OIIO::ImageInput::open(path, &config);
@@ -248,20 +287,24 @@ cv::Mat read_slice(const std::string& path, const std::optional<RawLayout>& raw)
   if (size == 0) throw InputError(cat(path, ": slice file is empty (0 bytes)"));
   if (raw) return read_raw(path, *raw, size);
   check_png_complete(path, size);
-  return read_oiio(path);
+  check_bmp_header(path);
+  return guard_decoder(path, [&] { return read_oiio_unguarded(path); });
 }
 
 cv::Size read_slice_size(const std::string& path, const std::optional<RawLayout>& raw) {
   if (raw) return {raw->width, raw->height};
-  auto input = OIIO::ImageInput::open(path);
-  if (!input) {
-    std::string why = one_line(OIIO::geterror());
-    if (why.empty()) why = "unknown image format";
-    throw InputError(cat(path, ": cannot read image: ", why));
-  }
-  const cv::Size size(input->spec().width, input->spec().height);
-  input->close();
-  return size;
+  check_bmp_header(path);
+  return guard_decoder(path, [&] {
+    auto input = OIIO::ImageInput::open(path);
+    if (!input) {
+      std::string why = one_line(OIIO::geterror());
+      if (why.empty()) why = "unknown image format";
+      throw InputError(cat(path, ": cannot read image: ", why));
+    }
+    const cv::Size size(input->spec().width, input->spec().height);
+    input->close();
+    return size;
+  });
 }
 
 namespace {

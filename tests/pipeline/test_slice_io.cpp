@@ -287,6 +287,25 @@ TEST(SliceIo, HugeHeaderIsRefused) {
   expect_error<vispack::InputError>([&] { vp::read_slice(dir / "bomb.png"); }, "bomb.png");
 }
 
+TEST(SliceIo, HugeRunLengthBmpIsRefusedBeforeTheDecoder) {
+  // A BMP whose header claims 603979787 x 7 pixels, run-length encoded: OpenImageIO's reader
+  // decodes it inside open() and threw std::length_error (found by fuzz_raw_slice). Refused by the
+  // size check with an error naming the file, for the pixels and for the size alone; the BMP it
+  // was made from still reads.
+  TempDir dir;
+  const std::string good = dir / "good.bmp";
+  vp::write_image(good, make_image(9, 5, CV_8UC3));
+  std::string bytes = read_bytes(good);
+  const unsigned width = 603979787u;
+  for (int i = 0; i < 4; ++i)
+    bytes[18 + i] = static_cast<char>((width >> (8 * i)) & 0xff);
+  bytes[30] = 2;  // BI_RLE4
+  write_bytes(dir / "huge.bmp", bytes);
+  expect_error<vispack::InputError>([&] { vp::read_slice(dir / "huge.bmp"); }, "huge.bmp");
+  expect_error<vispack::InputError>([&] { vp::read_slice_size(dir / "huge.bmp"); }, "huge.bmp");
+  EXPECT_EQ(vp::read_slice(good).size(), cv::Size(9, 5));
+}
+
 TEST(ListSlices, NumericSortAndPatternMatching) {
   TempDir dir;
   for (const char* name : {"rgb_10.png", "rgb_2.png", "rgb_0001.png", "rgb_x.png", "other_3.png",

@@ -17,7 +17,8 @@
 namespace vispack::pipeline {
 
 // Largest image edge and byte size read_slice accepts (a guard against decompression bombs and
-// hostile headers): images above either are refused with an InputError before any pixel is read.
+// hostile headers): images above either are refused with an InputError before any pixel is read
+// (a BMP's header is checked before OpenImageIO opens it: its reader decodes RLE inside open()).
 inline constexpr int kMaxImageEdge = 65536;
 inline constexpr std::uint64_t kMaxImageBytes = std::uint64_t(1) << 31;
 
