@@ -9,6 +9,7 @@
 #include <cstring>
 #include <deque>
 #include <exception>
+#include <functional>
 #include <limits>
 #include <map>
 #include <memory>
@@ -333,10 +334,11 @@ void encode_brick(const WriterOptions& opt, const std::vector<ChannelSpec>& stor
   en.checksum = xxh64(stored_bytes, stored_size);
 }
 
-// Narrows a uint16 label slice to uint8 (the stored type), refusing IDs above 255; `what`,
-// `slice` and `channel` name the slice in the error. Checked first: `dst` is untouched on error.
-void narrow_labels(const std::uint16_t* src, std::size_t plane, std::int64_t nx, std::uint8_t* dst,
-                   const std::string& what, std::int64_t slice, const std::string& channel) {
+// Throws InputError unless every ID of a uint16 label slice fits uint8 (the stored type); `what`,
+// `slice` and `channel` name the slice in the error.
+void check_labels_fit_uint8(const std::uint16_t* src, std::size_t plane, std::int64_t nx,
+                            const std::string& what, std::int64_t slice,
+                            const std::string& channel) {
   std::uint16_t any_high = 0;
   for (std::size_t i = 0; i < plane; ++i)
     any_high |= std::uint16_t(src[i] & 0xFF00u);
@@ -349,6 +351,13 @@ void narrow_labels(const std::uint16_t* src, std::size_t plane, std::int64_t nx,
       }
     }
   }
+}
+
+// Narrows a uint16 label slice to uint8, refusing IDs above 255 (checked first: `dst` is untouched
+// on error).
+void narrow_labels(const std::uint16_t* src, std::size_t plane, std::int64_t nx, std::uint8_t* dst,
+                   const std::string& what, std::int64_t slice, const std::string& channel) {
+  check_labels_fit_uint8(src, plane, nx, what, slice, channel);
   for (std::size_t i = 0; i < plane; ++i)
     dst[i] = std::uint8_t(src[i]);
 }
@@ -512,19 +521,16 @@ int Writer::level_count_for(const std::array<std::int64_t, 3>& dims, int brick_e
 }
 
 struct Writer::Impl {
-  // A run of consecutive bricks of one slab handed to the workers: bricks [first, first + count)
-  // of the slab's index order, gathered from `blocks` (per channel). Fields other than the
-  // constants and `results` are guarded by Impl::mutex; results[j] belongs to whoever makes brick
-  // j until finished[j] is set.
+  // Work handed to the workers: `count` items, item j made by `make(j, scratch)` (a brick of a
+  // slab, or a piece of a slice copy). Fields other than the constants and what `make` writes are
+  // guarded by Impl::mutex; what item j writes belongs to whoever makes it until finished[j] is
+  // set.
   struct Batch {
-    BrickSource source;
-    std::vector<ChannelBlock> blocks;
-    std::int64_t first = 0;
+    std::function<void(std::int64_t, WorkerScratch&)> make;
     std::int64_t count = 0;
-    std::vector<BrickResult> results;
     std::vector<char> finished;
-    std::int64_t next = 0;  // next brick to hand out
-    std::int64_t done = 0;  // bricks finished
+    std::int64_t next = 0;  // next item to hand out
+    std::int64_t done = 0;  // items finished
     std::exception_ptr error;
   };
 
@@ -535,9 +541,9 @@ struct Writer::Impl {
     std::uint64_t index_base = 0;
     // Level 0: per channel, the slab of edge slices being filled (the only full-size buffer).
     std::vector<UninitialisedBytes> slab;
-    // Levels >= 1: where channel c's slab lives in the spill store (edge planes), and the last
-    // two slices received (per channel, two planes), which the next level is reduced from.
-    std::vector<std::uint64_t> spill_offset;
+    // Levels >= 1: channel c's slab in the spill store (its id there), and the last two slices
+    // received (per channel, two planes), which the next level is reduced from.
+    std::vector<int> spill_slab;
     std::vector<std::vector<std::uint8_t>> pair;
     std::vector<std::vector<std::uint8_t>> next_slice;  // per channel: one slice of level + 1
   };
@@ -587,7 +593,7 @@ struct Writer::Impl {
     geometry = std::move(*g);
     const int n_levels = int(geometry.levels.size());
     const std::uint64_t base = geometry.index_count;
-    std::uint64_t spill_bytes = 0;
+    spill = std::make_unique<detail::SpillStore>(opt.coarse_levels_memory_bytes, path);
     for (int l = 0; l < n_levels; ++l) {
       const LevelInfo& li = geometry.levels[std::size_t(l)];
       const std::array<std::int64_t, 3>& d = li.dims;
@@ -602,8 +608,7 @@ struct Writer::Impl {
         if (l == 0) {
           lv.slab.emplace_back(plane * planes * bytes);
         } else {
-          lv.spill_offset.push_back(spill_bytes);
-          spill_bytes += plane * planes * bytes;
+          lv.spill_slab.push_back(spill->add_slab(int(planes), d[1], std::size_t(d[0]) * bytes, e));
           if (l + 1 < n_levels) lv.pair.emplace_back(2 * plane * bytes);
         }
         if (l + 1 < n_levels) {
@@ -613,7 +618,6 @@ struct Writer::Impl {
       }
       levels.push_back(std::move(lv));
     }
-    spill = std::make_unique<detail::SpillStore>(spill_bytes, opt.coarse_levels_memory_bytes, path);
     entries.resize(base);
     entry_labels.resize(base);
     filled.assign(base, false);
@@ -653,10 +657,7 @@ struct Writer::Impl {
     lock.unlock();
     std::exception_ptr error;
     try {
-      const std::int64_t i = b->first + j;
-      const std::int64_t per_channel = b->source.gx * b->source.gy;
-      encode_brick(opt, stored, path, b->source, b->blocks[std::size_t(i / per_channel)], i,
-                   scratch, b->results[std::size_t(j)]);
+      b->make(j, scratch);
     } catch (...) {
       error = std::current_exception();
     }
@@ -718,12 +719,15 @@ struct Writer::Impl {
   // in index order as soon as it is made (its payload freed at once).
   void encode_and_write(const BrickSource& source, std::vector<ChannelBlock> blocks,
                         std::int64_t first, std::int64_t count) {
+    std::vector<BrickResult> results(static_cast<std::size_t>(count));
+    const std::int64_t per_channel = source.gx * source.gy;
     Batch b;
-    b.source = source;
-    b.blocks = std::move(blocks);
-    b.first = first;
+    b.make = [&](std::int64_t j, WorkerScratch& scratch) {
+      const std::int64_t i = first + j;
+      encode_brick(opt, stored, path, source, blocks[std::size_t(i / per_channel)], i, scratch,
+                   results[std::size_t(j)]);
+    };
     b.count = count;
-    b.results.resize(std::size_t(count));
     b.finished.assign(std::size_t(count), 0);
     if (!own_scratch) own_scratch = std::make_unique<WorkerScratch>();
     std::unique_lock<std::mutex> lock(mutex);
@@ -743,12 +747,52 @@ struct Writer::Impl {
       }
       if (b.error) std::rethrow_exception(b.error);  // `drain` waits for the bricks in flight
       lock.unlock();
-      BrickResult& r = b.results[std::size_t(j)];
+      BrickResult& r = results[std::size_t(j)];
       store(slot(source.level, source.bz, first + j), r.entry, r.payload.data.get(),
             std::move(r.labels));
       r.payload.clear();
       lock.lock();
     }
+  }
+
+  // Runs items [0, count) of `make` on every thread (the calling thread included) and returns
+  // when all are done; the first error is rethrown after the items in flight have finished.
+  void run_all(std::int64_t count, const std::function<void(std::int64_t, WorkerScratch&)>& make) {
+    if (count <= 0) return;
+    if (!own_scratch) own_scratch = std::make_unique<WorkerScratch>();
+    if (workers.empty() || count == 1) {
+      for (std::int64_t j = 0; j < count; ++j)
+        make(j, *own_scratch);
+      return;
+    }
+    Batch b;
+    b.make = make;
+    b.count = count;
+    b.finished.assign(std::size_t(count), 0);
+    std::unique_lock<std::mutex> lock(mutex);
+    pending = &b;
+    work_ready.notify_all();
+    BatchDrain drain{*this, b, lock};
+    while (b.done < count && !b.error) {
+      if (pending == &b) {
+        run_one(lock, *own_scratch);
+      } else {
+        brick_done.wait(lock);
+      }
+    }
+    if (b.error) std::rethrow_exception(b.error);
+  }
+
+  // Copies `n` bytes from `src` to `dst` on every thread, in pieces of about kCopyPiece bytes:
+  // filling the level-0 slab is most of a slab's work outside its flush (and, the first time,
+  // the page faults of a fresh slab), so the workers, idle until the flush, share it.
+  static constexpr std::size_t kCopyPiece = std::size_t(4) << 20;
+  void copy_parallel(std::uint8_t* dst, const std::uint8_t* src, std::size_t n) {
+    const std::int64_t pieces = std::int64_t((n + kCopyPiece - 1) / kCopyPiece);
+    run_all(pieces, [&](std::int64_t k, WorkerScratch&) {
+      const std::size_t at = std::size_t(k) * kCopyPiece;
+      std::memcpy(dst + at, src + at, std::min(kCopyPiece, n - at));
+    });
   }
 
   // Encodes and writes slab `bz` of level L (its first nzv slices valid).
@@ -797,17 +841,13 @@ struct Writer::Impl {
     // y of one channel) is read back at a time.
     for (std::size_t c = 0; c < stored.size(); ++c) {
       const std::size_t bytes = channel_type_bytes(stored[c].type);
-      const std::size_t plane = std::size_t(dx) * std::size_t(dy) * bytes;
       for (std::int64_t by = 0; by < gy; ++by) {
         const std::int64_t y0 = by * opt.brick_edge;
         const std::int64_t rows = std::min<std::int64_t>(opt.brick_edge, dy - y0);
         const std::size_t run = std::size_t(rows) * std::size_t(dx) * bytes;
         if (band.size() < run * std::size_t(nzv)) band.resize(run * std::size_t(nzv));
-        for (int z = 0; z < nzv; ++z) {
-          spill->read(lv.spill_offset[c] + std::uint64_t(z) * plane +
-                          std::uint64_t(y0) * std::uint64_t(dx) * bytes,
-                      band.data() + std::size_t(z) * run, run);
-        }
+        for (int z = 0; z < nzv; ++z)
+          spill->get_band(lv.spill_slab[c], z, by, band.data() + std::size_t(z) * run);
         std::vector<ChannelBlock> blocks(stored.size());
         blocks[c] = {band.data(), y0, rows};
         encode_and_write(source, std::move(blocks), std::int64_t(c) * per_channel + by * gx, gx);
@@ -825,17 +865,28 @@ struct Writer::Impl {
     const std::int64_t zs = z % e;
     const std::size_t plane = std::size_t(lv.dims[0]) * std::size_t(lv.dims[1]);
     const bool has_next = L + 1 < int(levels.size());
-    for (std::size_t c = 0; c < stored.size(); ++c) {
-      const std::size_t bytes = channel_type_bytes(stored[c].type);
-      if (L == 0) {
+    if (L == 0) {
+      for (std::size_t c = 0; c < stored.size(); ++c) {
+        const std::size_t bytes = channel_type_bytes(stored[c].type);
         std::uint8_t* dst = lv.slab[c].data() + std::size_t(zs) * plane * bytes;
-        if (slices_in[c] != dst) std::memcpy(dst, slices_in[c], plane * bytes);
-      } else {
-        spill->write(lv.spill_offset[c] + std::uint64_t(zs) * plane * bytes, slices_in[c],
-                     plane * bytes);
-        if (has_next)
+        if (slices_in[c] != dst) copy_parallel(dst, slices_in[c], plane * bytes);
+      }
+    } else {
+      // Into the spill store band by band (each compressed on its own), on every thread.
+      const std::int64_t bands = spill->band_count(lv.spill_slab[0]);
+      run_all(bands * std::int64_t(stored.size()), [&](std::int64_t k, WorkerScratch& scratch) {
+        const std::size_t c = std::size_t(k / bands);
+        const std::int64_t band = k % bands;
+        const std::size_t row = std::size_t(lv.dims[0]) * channel_type_bytes(stored[c].type);
+        spill->put_band(lv.spill_slab[c], int(zs), band, slices_in[c] + std::size_t(band * e) * row,
+                        scratch.cctx, scratch.out);
+      });
+      if (has_next) {
+        for (std::size_t c = 0; c < stored.size(); ++c) {
+          const std::size_t bytes = channel_type_bytes(stored[c].type);
           std::memcpy(lv.pair[c].data() + std::size_t(z % 2) * plane * bytes, slices_in[c],
                       plane * bytes);
+        }
       }
     }
     const bool last = z == lv.dims[2] - 1;
@@ -987,8 +1038,14 @@ void Writer::append_slice(const std::vector<const void*>& channel_slices) {
       // Narrowed straight into the level-0 slab; checked first, so a bad slice leaves the
       // slab as it was.
       std::uint8_t* dst = m.level0_slot(c);
-      narrow_labels(static_cast<const std::uint16_t*>(channel_slices[c]), plane, m.opt.dims[0], dst,
-                    m.path, m.slices, m.stored[c].name);
+      const auto* src = static_cast<const std::uint16_t*>(channel_slices[c]);
+      check_labels_fit_uint8(src, plane, m.opt.dims[0], m.path, m.slices, m.stored[c].name);
+      constexpr std::size_t piece = Impl::kCopyPiece;
+      m.run_all(std::int64_t((plane + piece - 1) / piece), [&](std::int64_t k, WorkerScratch&) {
+        const std::size_t at = std::size_t(k) * piece, end = std::min(plane, at + piece);
+        for (std::size_t i = at; i < end; ++i)
+          dst[i] = std::uint8_t(src[i]);
+      });
       in[c] = dst;
     }
   }

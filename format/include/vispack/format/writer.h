@@ -16,14 +16,16 @@
 // coarser level and two per level being reduced, one band of bricks (one brick row along y of
 // one channel of a coarser level) read back to be encoded, a few compressed bricks (each is
 // written as soon as it and the bricks before it are made) and one brick of scratch per thread.
-// The coarser levels' partly filled slabs (a third of a level-0 row at most) are kept in memory
-// up to WriterOptions::coarse_levels_memory_bytes, else in a nameless temporary file beside the
-// output, so they sit in the page cache, not in the resident set.
-// Threads: `threads` compression threads, the calling thread included (threads − 1 persistent
-// workers, started by the constructor and joined by finish() or the destructor; none for one
-// thread). When a slab is full, its bricks are made by the workers and the calling thread together,
-// and append_slice returns once they are written: the slab buffer is then refilled (the price of
-// holding one row: reading the next slices does not overlap the compression of this slab).
+// The coarser levels' partly filled slabs (a third of a level-0 row at most, raw) are kept as
+// zstd-compressed strips (one per band of bricks of a slice: outside the body they shrink to
+// almost nothing), in memory up to WriterOptions::coarse_levels_memory_bytes, the rest in a
+// nameless temporary file beside the output (page cache, not the resident set).
+// Threads: `threads` threads, the calling thread included (threads − 1 persistent workers,
+// started by the constructor and joined by finish() or the destructor; none for one thread).
+// They share each slice's copy into the slab and its coarser levels' strips, and when a slab is
+// full they make its bricks, the calling thread too; append_slice returns once they are written:
+// the slab buffer is then refilled (the price of holding one row: reading the next slices does
+// not overlap the compression of this slab).
 // Determinism: the same slices and options give a byte-identical file, whatever `threads`
 // (no timestamps; slabs are written in the order they fill, bricks in index order within).
 // Thread-safety: a Writer is used from one thread at a time.
@@ -57,9 +59,10 @@ struct WriterOptions {
   // config hash, input hashes), missing/duplicated slices, registration quality... It must not
   // contain anything that changes between runs if the output is to be byte-reproducible.
   nlohmann::json extra_metadata = nlohmann::json::object();
-  // The coarser levels' partly filled slabs (about a third of a level-0 brick row) stay in memory
-  // up to this many bytes, else they go to a nameless temporary file beside the output (page
-  // cache, not resident memory). The file is the same either way.
+  // The coarser levels' partly filled slabs (about a third of a level-0 brick row, raw; kept
+  // compressed) stay in memory up to this many bytes of compressed strips, the rest goes to a
+  // nameless temporary file beside the output (page cache, not resident memory). The file is the
+  // same either way.
   std::uint64_t coarse_levels_memory_bytes = std::uint64_t(64) << 20;
 };
 
