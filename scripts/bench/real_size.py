@@ -15,7 +15,8 @@ measure cost and memory, not accuracy (accuracy is measured on the phantoms with
 For the smallest N: `vispack-run --force --threads T` for T = 1 and 2, interleaved (1, 2, 1, 2,
 REPS rounds; medians), then `vispack-pack --force --threads 2`, the pack's encoder alone on the
 packed file's level-0 bytes (`format_writer_raw_bench`, 2 threads) and `zstd -3 -T2` of those raw
-bytes, interleaved. For every N: `vispack-run --force --threads 2`, then the
+bytes, interleaved; then the encoder against zstd on those slices fed 1, 2 and 4 times over
+(encoder_depth). For every N: `vispack-run --force --threads 2`, then the
 pack stage and the OpenVDB export alone, each under `/usr/bin/time -v` (peak resident memory).
 """
 import json
@@ -105,6 +106,58 @@ def level0_raw(vpk, path):
     return nrrds
 
 
+def write_repeated(nrrds, path, repeat):
+    """Each NRRD's raw data `repeat` times over, the channels one after the other: the level-0
+    bytes of the stack `format_writer_raw_bench --repeat` feeds."""
+    with open(path, "wb") as out:
+        for nrrd in nrrds:
+            with open(nrrd, "rb") as f:
+                head = f.read(1 << 16)
+                start = head.index(b"\n\n") + 2
+            for _ in range(repeat):
+                with open(nrrd, "rb") as f:
+                    f.seek(start)
+                    while True:
+                        block = f.read(1 << 24)
+                        if not block:
+                            break
+                        out.write(block)
+
+
+def encoder_depth(vpk, raw, nrrds):
+    """The pack's encoder against `zstd -3 -T2` as the stack deepens: the smallest stack's
+    level-0 slices fed 1, 2 and 4 times over (`format_writer_raw_bench --repeat R`: 128, 256, 512
+    slices' worth), against zstd of the same bytes (each channel's R copies one after the other),
+    zstd's input read into the page cache first; interleaved, REPS rounds. The Writer's one-row
+    slab is fresh memory on its first fill (page faults, paid once per run): the deeper stacks
+    show the encoder past it, as it runs on a real stack of hundreds of slices."""
+    rows = []
+    for repeat in (1, 2, 4):
+        raw_r = raw if repeat == 1 else f"{raw}.x{repeat}"
+        if repeat > 1:
+            write_repeated(nrrds, raw_r, repeat)
+        row = {"repeat": repeat, "raw_bytes": os.path.getsize(raw_r), "writer": [], "zstd": []}
+        for rep in range(REPS):
+            proc = subprocess.run([f"{BIN}/format_writer_raw_bench", vpk, raw + ".vpk"] + nrrds
+                                  + ["--threads", "2", "--repeat", str(repeat)],
+                                  check=True, capture_output=True, text=True)
+            row["writer"].append(json.loads(proc.stdout.strip().splitlines()[-1]))
+            row["vpk_bytes"] = os.path.getsize(raw + ".vpk")
+            os.remove(raw + ".vpk")
+            subprocess.run(["cat", raw_r], check=True, stdout=subprocess.DEVNULL)
+            wall, cpu, rss = time_v(["zstd", "-3", "-T2", "-q", "-f", raw_r, "-o", raw_r + ".zst"],
+                                    os.path.join(WORK, "real-size", f"zstd-x{repeat}-{rep}.time"))
+            row["zstd"].append({"wall_s": wall, "cpu_s": cpu})
+            row["zstd_bytes"] = os.path.getsize(raw_r + ".zst")
+            os.remove(raw_r + ".zst")
+            print(f"real_size: encoder x{repeat}: {row['writer'][-1]['write_s']:.2f} s, zstd {wall:.2f} s",
+                  file=sys.stderr)
+        if repeat > 1:
+            os.remove(raw_r)
+        rows.append(row)
+    return rows
+
+
 def main():
     base, out = os.path.abspath(sys.argv[1]), sys.argv[2]
     counts = sorted(int(s) for s in sys.argv[3:])
@@ -159,6 +212,7 @@ def main():
                                       "writer_wall_s": median([x["write_s"] for x in writer]),
                                       "writer_cpu_s": median([x["write_cpu_s"] for x in writer]),
                                       "zstd_cpu_s": median([z["cpu_s"] for z in zstd])}
+            result["encoder_depth"] = encoder_depth(vpk, raw, nrrds)
             for nrrd in nrrds:
                 os.remove(nrrd)
             os.remove(raw)

@@ -4,16 +4,23 @@
 // order) into memory, then times a format::Writer fed those slices with the packed file's
 // options (dims, spacing, origin, brick edge, channels, label table; zstd level and threads as
 // given): every level, statistics, checksums and the file, as vispack-pack writes them. The
-// NRRD reading is timed apart. Prints one JSON line.
+// NRRD reading is timed apart. Prints one JSON line. With VISPACK_PERF_CTL naming a perf control
+// FIFO, writes "enable" to it when the timed part starts (profile the Writer alone).
 //
 //   build/bin/format_writer_raw_bench TEMPLATE.vpk OUT.vpk CHANNEL.nrrd... [--zstd-level L]
-//       [--threads T]
+//       [--threads T] [--repeat N]
+// --repeat N feeds the slices N times over (0..nz-1, 0..nz-1, ...: a stack N times as deep, whose
+// level-0 bytes are each NRRD's data N times over, the peer's input), to measure the encoder past
+// its first slabs (the first fill of a fresh slab pays its page faults) without holding N times
+// the bytes in memory.
 #include <sys/resource.h>
 
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "vispack/common/cli.h"
@@ -26,11 +33,12 @@ using Clock = std::chrono::steady_clock;
 
 namespace {
 
-double cpu_seconds() {
+// User and system CPU seconds of the process so far.
+std::pair<double, double> cpu_seconds() {
   struct rusage usage {};
   getrusage(RUSAGE_SELF, &usage);
-  return double(usage.ru_utime.tv_sec + usage.ru_stime.tv_sec) +
-         1e-6 * double(usage.ru_utime.tv_usec + usage.ru_stime.tv_usec);
+  return {double(usage.ru_utime.tv_sec) + 1e-6 * double(usage.ru_utime.tv_usec),
+          double(usage.ru_stime.tv_sec) + 1e-6 * double(usage.ru_stime.tv_usec)};
 }
 
 double since(Clock::time_point t) {
@@ -41,12 +49,16 @@ double since(Clock::time_point t) {
 
 int main(int argc, char** argv) {
   return run_main("format_writer_raw_bench", argc, argv, [](Args& args) {
-    args.describe("TEMPLATE.vpk OUT.vpk CHANNEL.nrrd... [--zstd-level L] [--threads T]",
-                  "Times the format Writer on a packed file's level-0 bytes (vispack-extract "
-                  "NRRDs, one per channel in the file's order) with the file's options.");
+    args.describe(
+        "TEMPLATE.vpk OUT.vpk CHANNEL.nrrd... [--zstd-level L] [--threads T] [--repeat N]",
+        "Times the format Writer on a packed file's level-0 bytes (vispack-extract "
+        "NRRDs, one per channel in the file's order) with the file's options.");
     const int zstd_level =
         int(args.option_int("--zstd-level", "L", "zstd level (default 3)").value_or(3));
     const int threads = int(args.option_int("--threads", "T", "threads (default 2)").value_or(2));
+    const int repeat = int(
+        args.option_int("--repeat", "N", "feed the slices N times over (default 1)").value_or(1));
+    if (repeat < 1) throw UsageError("--repeat must be at least 1");
     const std::string template_path = args.positional("TEMPLATE.vpk", "packed file (options)");
     const std::string out_path = args.positional("OUT.vpk", "output packed file");
     std::vector<std::string> inputs;
@@ -83,11 +95,22 @@ int main(int argc, char** argv) {
         throw InputError(cat(inputs[c], ": dims differ from ", template_path));
       raw_bytes += volumes.back().data.size();
     }
+    const std::int64_t nz = options.dims[2];
+    options.dims[2] *= repeat;
+    raw_bytes *= std::uint64_t(repeat);
     const double read_s = since(read_start);
 
     const std::size_t plane = std::size_t(options.dims[0]) * std::size_t(options.dims[1]);
     std::vector<std::uint16_t> widened(plane);
-    const double cpu0 = cpu_seconds();
+    // Profiling the write alone: `perf record --control=fifo:CTL -D -1 ...` with
+    // VISPACK_PERF_CTL=CTL starts the profile here.
+    if (const char* ctl = std::getenv("VISPACK_PERF_CTL")) {
+      if (std::FILE* f = std::fopen(ctl, "w")) {
+        std::fputs("enable\n", f);
+        std::fclose(f);
+      }
+    }
+    const auto cpu0 = cpu_seconds();
     const auto start = Clock::now();
     format::Writer writer(out_path, options);
     for (std::int64_t z = 0; z < options.dims[2]; ++z) {
@@ -95,7 +118,7 @@ int main(int argc, char** argv) {
       for (std::size_t c = 0; c < volumes.size(); ++c) {
         const NrrdVolume& v = volumes[c];
         const std::size_t voxel = std::size_t(v.components) * nrrd_type_size(v.type);
-        const std::uint8_t* slice = v.data.data() + std::size_t(z) * plane * voxel;
+        const std::uint8_t* slice = v.data.data() + std::size_t(z % nz) * plane * voxel;
         if (options.channels[c].type == format::ChannelType::kUint16 && voxel == 1) {
           for (std::size_t i = 0; i < plane; ++i)
             widened[i] = slice[i];
@@ -108,11 +131,14 @@ int main(int argc, char** argv) {
     }
     writer.finish();
     const double write_s = since(start);
-    const double cpu_s = cpu_seconds() - cpu0;
+    const auto cpu1 = cpu_seconds();
+    const double user_s = cpu1.first - cpu0.first, sys_s = cpu1.second - cpu0.second;
     std::printf(
         "{\"raw_bytes\": %llu, \"read_s\": %.4f, \"write_s\": %.4f, \"write_cpu_s\": %.4f, "
-        "\"threads\": %d, \"zstd_level\": %d, \"out_bytes\": %llu}\n",
-        static_cast<unsigned long long>(raw_bytes), read_s, write_s, cpu_s, threads, zstd_level,
+        "\"write_user_s\": %.4f, \"write_sys_s\": %.4f, \"threads\": %d, \"zstd_level\": %d, "
+        "\"repeat\": %d, \"out_bytes\": %llu}\n",
+        static_cast<unsigned long long>(raw_bytes), read_s, write_s, user_s + sys_s, user_s, sys_s,
+        threads, zstd_level, repeat,
         static_cast<unsigned long long>(format::Reader::open(out_path).file_size()));
     return 0;
   });
