@@ -213,10 +213,9 @@ def main():
                                       "writer_cpu_s": median([x["write_cpu_s"] for x in writer]),
                                       "zstd_cpu_s": median([z["cpu_s"] for z in zstd])}
             result["encoder_depth"] = encoder_depth(vpk, raw, nrrds)
-            for nrrd in nrrds:
-                os.remove(nrrd)
-            os.remove(raw)
-            os.remove(raw + ".zst")
+            for path in nrrds + [raw, raw + ".zst"]:
+                if os.path.exists(path):  # encoder_depth removed its zstd output
+                    os.remove(path)
         else:
             log = os.path.join(logs, f"run-{n}-t2")
             with open(log + ".out", "w") as so:
