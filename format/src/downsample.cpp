@@ -200,6 +200,16 @@ void downsample_row_full(ChannelType type, const std::uint8_t* src, std::int64_t
         const std::uint8_t* r[4];
         for (int k = 0; k < 4; ++k)
           r[k] = rows[k] + 8 * x;
+        // Eight equal children (outside the body, most of a slice) reduce to themselves:
+        // reduce8_rgba gives (8 v + 4) >> 3 = v for every component.
+        std::uint64_t pair[4];
+        for (int k = 0; k < 4; ++k)
+          std::memcpy(&pair[k], r[k], 8);
+        if (pair[0] == pair[1] && pair[0] == pair[2] && pair[0] == pair[3] &&
+            std::memcmp(r[0], r[0] + 4, 4) == 0) {
+          std::memcpy(dst + 4 * x, r[0], 4);
+          continue;
+        }
         reduce8_rgba(r, dst + 4 * x);
       }
       break;

@@ -1040,7 +1040,7 @@ void Writer::append_slice(const std::vector<const void*>& channel_slices) {
       std::uint8_t* dst = m.level0_slot(c);
       const auto* src = static_cast<const std::uint16_t*>(channel_slices[c]);
       check_labels_fit_uint8(src, plane, m.opt.dims[0], m.path, m.slices, m.stored[c].name);
-      constexpr std::size_t piece = Impl::kCopyPiece;
+      constexpr std::size_t piece = Impl::kCopyPiece / 4;  // reads 2, writes 1 byte per ID
       m.run_all(std::int64_t((plane + piece - 1) / piece), [&](std::int64_t k, WorkerScratch&) {
         const std::size_t at = std::size_t(k) * piece, end = std::min(plane, at + piece);
         for (std::size_t i = at; i < end; ++i)

@@ -375,6 +375,26 @@ TEST(Reduction, FastPathsAgreeWithReferenceOnNoise) {
   }
 }
 
+// The uniform-block shortcut of the colour reduction (eight equal children give themselves) must
+// not take a block whose four rows are equal but whose two x children differ: colour and alpha
+// vary along x only here (constant in y and z), uniform stretches in between.
+TEST(Reduction, RowsEqualInYAndZButNotAlongXAreAveraged) {
+  Volume v = make_volume({45, 12, 10}, 6, 40);
+  const std::size_t plane = std::size_t(v.dims[0] * v.dims[1]);
+  for (std::size_t i = 0; i < plane * std::size_t(v.dims[2]); ++i) {
+    const std::size_t x = i % std::size_t(v.dims[0]);
+    std::uint8_t* p = &v.data[0][4 * i];
+    const bool flat = (x / 6) % 2 == 0;  // stretches of equal voxels
+    p[0] = std::uint8_t(flat ? 90 : 17 * x);
+    p[1] = std::uint8_t(flat ? 90 : 255 - 11 * x);
+    p[2] = std::uint8_t(flat ? 90 : 3 * x);
+    p[3] = std::uint8_t(flat ? 255 : (x % 3 == 0 ? 255 : 40 * (x % 5)));
+  }
+  std::string path = temp_path("rows.vpk");
+  write(path, v, options_for(v, 4, 2));
+  check_all_levels(path, v);
+}
+
 // A writer abandoned with slabs still being compressed joins its threads and leaves nothing.
 TEST(Writer, AbandonedWithSlabsInFlightLeavesNoFile) {
   Volume v = make_volume({40, 30, 50}, 3);
