@@ -147,14 +147,4 @@ void SpillStore::get_band(int slab, int z, std::int64_t band, std::uint8_t* out)
     throw FormatError(cat(what_, ": band ", band, " of plane ", z, " does not decode"));
 }
 
-std::uint64_t SpillStore::memory_bytes() const {
-  std::lock_guard<std::mutex> lock(mutex_);
-  return memory_used_;
-}
-
-bool SpillStore::in_file() const {
-  std::lock_guard<std::mutex> lock(mutex_);
-  return fd_ >= 0;
-}
-
 }  // namespace vispack::format::detail

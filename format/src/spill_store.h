@@ -48,10 +48,6 @@ class SpillStore {
   // an internal error), std::logic_error (a strip never stored).
   void get_band(int slab, int z, std::int64_t band, std::uint8_t* out);
 
-  // Bytes of strips held in memory / slots written in the file (for tests and benchmarks).
-  std::uint64_t memory_bytes() const;
-  bool in_file() const;
-
  private:
   struct Strip {
     bool stored = false;
@@ -79,7 +75,7 @@ class SpillStore {
   std::vector<Slab> slabs_;
   int fd_ = -1;
   ZSTD_DCtx* dctx_ = nullptr;
-  mutable std::mutex mutex_;
+  std::mutex mutex_;
   std::vector<std::uint8_t> scratch_;  // get_band's compressed bytes read from the file
 };
 
