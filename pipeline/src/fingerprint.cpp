@@ -22,6 +22,16 @@ Fingerprint& Fingerprint::file(const std::string& path) {
   return *this;
 }
 
+Fingerprint& Fingerprint::content(const std::string& path) {
+  struct stat st {};
+  if (::stat(path.c_str(), &st) != 0) {
+    data_ += cat("C", path, "\nmissing\n");
+    return *this;
+  }
+  data_ += cat("C", path, "\n", hex64(xxh64_file(path)), "\n");
+  return *this;
+}
+
 Fingerprint& Fingerprint::text(const std::string& value) {
   data_ += cat("T", value.size(), ":", value, "\n");
   return *this;

@@ -386,7 +386,7 @@ std::string slab_input(const Config& config, const PackPlan& plan, std::int64_t 
   Fingerprint fp;
   auto [first, last] = slab_slices(plan, bz);
   // Colour and CT are rebuilt from the inputs with transforms.json (work_layout.h).
-  fp.file(transforms_path(config));
+  fp.content(transforms_path(config));  // by its bytes: shards may rewrite it (fingerprint.h)
   for (int k = first; k < last; ++k) {
     fp.file(plan.inputs.rgb[std::size_t(k)].path).file(mask_path(config, k));
     if (config.ct) {

@@ -272,11 +272,12 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
       st.reference_slice = 0;
     }
     st.ct_to_rgb = ct_to_rgb;
-    // Rewrite only on change, so later stages (whose staleness follows this file's identity)
-    // stay current. Compared in memory: shards that solve at the same time (each register run
-    // that finds every record solves) find the same text and leave the file alone; a shared
-    // temporary name would let one remove the other's copy mid-compare, and the rewrite that
-    // followed made every other shard's masks stale.
+    // Rewrite only on change. Compared in memory: shards that solve at the same time (each
+    // register run that finds every record solves: on a cluster every per-slice shard does,
+    // scripts/vispack-slurm) find the same text and leave the file alone; a shared temporary
+    // name would let one remove the other's copy mid-compare. Two that both find it missing or
+    // stale both write the same bytes, and what depends on the file is keyed on its bytes, not
+    // its mtime (Fingerprint::content), so neither rewrite makes another shard's work stale.
     bool same = false;
     try {
       same = fs::exists(tpath) && read_file(tpath) == transforms_text(st);

@@ -115,8 +115,10 @@ StageRun::StageRun(const Config& config, std::string stage, int slice_count,
   config_hash_ = config_section_hash(config_, sections);
   Fingerprint fp;
   fp.text(stage_).text(version_string()).text(config_hash_);
+  // By their bytes: small files (transforms.json, a palette, an id map, overrides), and
+  // transforms.json is rewritten with the same bytes by every shard that solves (fingerprint.h).
   for (const auto& input : stage_inputs)
-    fp.file(input);
+    fp.content(input);
   stage_hash_ = fp.str();
   if (sharded_) {
     manifest_path_ = cat(dir_, "/manifest-", range_.first, "-", range_.last, ".json");

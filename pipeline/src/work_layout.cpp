@@ -178,8 +178,8 @@ cv::Mat resampled_ct16(const Config& config, const StackInputs& inputs, int inde
 
 Fingerprint intermediates_fingerprint(const Config& config, const StackInputs& inputs) {
   Fingerprint fp;
-  fp.text("intermediates-v2");  // v2: colour and CT rebuilt from the inputs (issue 12)
-  fp.file(transforms_path(config));
+  fp.text("intermediates-v2");          // v2: colour and CT rebuilt from the inputs (issue 12)
+  fp.content(transforms_path(config));  // by its bytes: shards may rewrite it (fingerprint.h)
   for (const auto& f : inputs.rgb)
     fp.file(f.path);
   for (const auto& f : inputs.ct)

@@ -60,11 +60,11 @@ dry_chain() {
 
 # 3 shards, 3 slabs of 8 slices: whole-slab shards, the pack shard at the end of the per-slice
 # job (one dependent step less).
-dry_chain 3 "01-register-measure.sh 02-register-solve.sh 03-slices.sh 04-pack-merge.sh 05-vdb.sh " 3
+dry_chain 3 "01-register-measure.sh 02-slices.sh 03-pack-merge.sh 04-vdb.sh " 3
 # One process per shard: register, the streaming mask + labels + pack pass.
-grep -q 'vispack-run .* --slices \$a:\$b --from register --to pack ' "$tmp/run/03.sh" ||
+grep -q 'vispack-run .* --slices \$a:\$b --from register --to pack ' "$tmp/run/02.sh" ||
   fail "the per-slice job is not one vispack-run --slices A:B --from register --to pack"
-[[ $(grep -c "^\(exec \)\?$bin/" "$tmp/run/03.sh") == 1 ]] || fail "the per-slice job runs more than one process"
+[[ $(grep -c "^\(exec \)\?$bin/" "$tmp/run/02.sh") == 1 ]] || fail "the per-slice job runs more than one process"
 # The OpenVDB export in three parts, one per shard, and no whole file.
 parts=$(cd "$tmp/my dir/out" && ls -- *.slices-*.vdb 2>/dev/null | tr '\n' ' ')
 [[ $parts == "volume.slices-0000-0008.vdb volume.slices-0008-0016.vdb volume.slices-0016-0024.vdb " ]] ||
@@ -72,15 +72,15 @@ parts=$(cd "$tmp/my dir/out" && ls -- *.slices-*.vdb 2>/dev/null | tr '\n' ' ')
 [[ ! -e "$tmp/my dir/out/volume.vdb" ]] || fail "a sharded vdb step wrote the whole file too"
 
 # 2 shards, 3 slabs: whole slabs again, one shard of one slab and one of two (not i*S/N = 12).
-dry_chain 2 "01-register-measure.sh 02-register-solve.sh 03-slices.sh 04-pack-merge.sh 05-vdb.sh " 3
+dry_chain 2 "01-register-measure.sh 02-slices.sh 03-pack-merge.sh 04-vdb.sh " 3
 parts=$(cd "$tmp/my dir/out" && ls -- *.slices-*.vdb 2>/dev/null | tr '\n' ' ')
 [[ $parts == "volume.slices-0000-0008.vdb volume.slices-0008-0024.vdb " ]] ||
   fail "OpenVDB parts with 2 shards of 3 slabs: '$parts'"
 
 # 4 shards, 3 slabs: shards of the slices (i*S/N), the pack as its own step.
-dry_chain 4 "01-register-measure.sh 02-register-solve.sh 03-slices.sh 04-pack.sh 05-pack-merge.sh 06-vdb.sh " 4
-grep -q 'vispack-pack' "$tmp/run/03.sh" && fail "4 shards of 3 slabs: the pack joined the per-slice job"
-grep -q 'vispack-run .* --slices \$a:\$b --from register --to labels ' "$tmp/run/03.sh" ||
+dry_chain 4 "01-register-measure.sh 02-slices.sh 03-pack.sh 04-pack-merge.sh 05-vdb.sh " 4
+grep -q 'vispack-pack' "$tmp/run/02.sh" && fail "4 shards of 3 slabs: the pack joined the per-slice job"
+grep -q 'vispack-run .* --slices \$a:\$b --from register --to labels ' "$tmp/run/02.sh" ||
   fail "4 shards: the per-slice job is not one vispack-run --slices A:B --to labels"
 parts=$(cd "$tmp/my dir/out" && ls -- *.slices-*.vdb 2>/dev/null | tr '\n' ' ')
 [[ $parts == "volume.slices-0000-0006.vdb volume.slices-0006-0012.vdb volume.slices-0012-0018.vdb volume.slices-0018-0024.vdb " ]] ||

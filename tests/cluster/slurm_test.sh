@@ -81,7 +81,7 @@ if "$root/scripts/vispack-slurm" "$tmp/slurm/config.json" --shards "$shards" --b
   rm "$tmp/slurm/work/mask/mask_0010.png"
   n=$("$bin/vispack-run" "$tmp/slurm/config.json" --plan | sed -n 's/^slices //p')
   a=$((1 * n / shards)) b=$((2 * n / shards))
-  sbatch --wait --array=1 --kill-on-invalid-dep=yes "$tmp/slurm/jobs/03-slices.sh" >/dev/null ||
+  sbatch --wait --array=1 --kill-on-invalid-dep=yes "$tmp/slurm/jobs/02-slices.sh" >/dev/null ||
     fail "resubmitted per-slice task 1 failed"
   processed=$(grep -o '"processed": *[0-9]*' "$tmp/slurm/work/mask/report-$a-$b.json" | grep -o '[0-9]*$')
   if [[ -f $tmp/slurm/work/mask/mask_0010.png && $processed == 1 ]]; then

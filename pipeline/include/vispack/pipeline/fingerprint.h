@@ -12,6 +12,12 @@ namespace vispack::pipeline {
 class Fingerprint {
  public:
   Fingerprint& file(const std::string& path);
+  // A small file by its bytes (path and xxHash64 of the contents), not its mtime: for
+  // files that several shards may each rewrite with the same bytes (transforms.json, which
+  // every per-slice shard's register run solves and writes when it differs), so that a rewrite
+  // of the same bytes leaves every fingerprint that names it as it was. Reads the whole file;
+  // throws IoError when it exists and cannot be read.
+  Fingerprint& content(const std::string& path);
   Fingerprint& text(const std::string& value);
   Fingerprint& number(double value);
   std::string str() const;  // 16 hex digits
