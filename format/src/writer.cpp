@@ -29,32 +29,10 @@
 #include "vispack/format/geometry.h"
 #include "vispack/format/limits.h"
 #include "vispack/format/metadata.h"
+#include "zero_paged_buffer.h"
 
 namespace vispack::format {
 namespace {
-
-// A byte buffer whose bytes are not zeroed when it is sized: the level-0 slab (~1 GB at
-// 2048x1216) is filled slice by slice before any of it is read (a brick past the last valid
-// slice replicates it: encode_brick), so zeroing it first only cost time at the start of a pack.
-template <class T>
-struct DefaultInitAllocator : std::allocator<T> {
-  template <class U>
-  struct rebind {
-    using other = DefaultInitAllocator<U>;
-  };
-  DefaultInitAllocator() = default;
-  template <class U>
-  DefaultInitAllocator(const DefaultInitAllocator<U>&) noexcept {}
-  template <class U>
-  void construct(U* p) noexcept {
-    ::new (static_cast<void*>(p)) U;  // default-initialised: bytes left as they are
-  }
-  template <class U, class... Args>
-  void construct(U* p, Args&&... args) {
-    ::new (static_cast<void*>(p)) U(std::forward<Args>(args)...);
-  }
-};
-using UninitialisedBytes = std::vector<std::uint8_t, DefaultInitAllocator<std::uint8_t>>;
 
 using detail::align_up;
 using detail::IndexEntry;
@@ -539,8 +517,9 @@ struct Writer::Impl {
     std::array<std::int64_t, 3> grid{};
     std::int64_t received = 0;
     std::uint64_t index_base = 0;
-    // Level 0: per channel, the slab of edge slices being filled (the only full-size buffer).
-    std::vector<UninitialisedBytes> slab;
+    // Level 0: per channel, the slab of edge slices being filled (the only full-size buffer):
+    // fresh pages that zero slices leave untouched (zero_paged_buffer.h).
+    std::vector<detail::ZeroPagedBuffer> slab;
     // Levels >= 1: channel c's slab in the spill store (its id there), and the last two slices
     // received (per channel, two planes), which the next level is reduced from.
     std::vector<int> spill_slab;
@@ -786,12 +765,32 @@ struct Writer::Impl {
   // Copies `n` bytes from `src` to `dst` on every thread, in pieces of about kCopyPiece bytes:
   // filling the level-0 slab is most of a slab's work outside its flush (and, the first time,
   // the page faults of a fresh slab), so the workers, idle until the flush, share it.
+  // The pieces are aligned on multiples of kCopyPiece within the slab (a multiple of the page
+  // size), so no two share a page (ZeroPagedBuffer's condition for writing at once).
   static constexpr std::size_t kCopyPiece = std::size_t(4) << 20;
-  void copy_parallel(std::uint8_t* dst, const std::uint8_t* src, std::size_t n) {
-    const std::int64_t pieces = std::int64_t((n + kCopyPiece - 1) / kCopyPiece);
+  template <class Write>
+  void write_parallel(std::size_t at, std::size_t n, std::size_t piece, Write write) {
+    const std::size_t base = at / piece * piece, end = at + n;
+    const std::int64_t pieces = std::int64_t((end - base + piece - 1) / piece);
     run_all(pieces, [&](std::int64_t k, WorkerScratch&) {
-      const std::size_t at = std::size_t(k) * kCopyPiece;
-      std::memcpy(dst + at, src + at, std::min(kCopyPiece, n - at));
+      const std::size_t from = std::max(at, base + std::size_t(k) * piece);
+      const std::size_t to = std::min(end, base + std::size_t(k + 1) * piece);
+      write(from, to - from);
+    });
+  }
+  void copy_parallel(detail::ZeroPagedBuffer& dst, std::size_t at, const std::uint8_t* src,
+                     std::size_t n) {
+    write_parallel(at, n, kCopyPiece, [&](std::size_t from, std::size_t count) {
+      dst.write(from, src + (from - at), count);
+    });
+  }
+  // uint16 label IDs (checked to fit) narrowed to uint8 into the slab: reads 2, writes 1 byte
+  // per ID, so a quarter of kCopyPiece per piece.
+  void narrow_parallel(detail::ZeroPagedBuffer& dst, std::size_t at, const std::uint16_t* src,
+                       std::size_t n) {
+    static_assert((kCopyPiece / 4) % 65536 == 0, "pieces must be whole pages");
+    write_parallel(at, n, kCopyPiece / 4, [&](std::size_t from, std::size_t count) {
+      dst.write_narrowed(from, src + (from - at), count);
     });
   }
 
@@ -868,8 +867,9 @@ struct Writer::Impl {
     if (L == 0) {
       for (std::size_t c = 0; c < stored.size(); ++c) {
         const std::size_t bytes = channel_type_bytes(stored[c].type);
-        std::uint8_t* dst = lv.slab[c].data() + std::size_t(zs) * plane * bytes;
-        if (slices_in[c] != dst) copy_parallel(dst, slices_in[c], plane * bytes);
+        const std::size_t at = std::size_t(zs) * plane * bytes;
+        if (slices_in[c] != lv.slab[c].data() + at)
+          copy_parallel(lv.slab[c], at, slices_in[c], plane * bytes);
       }
     } else {
       // Into the spill store band by band (each compressed on its own), on every thread.
@@ -906,12 +906,12 @@ struct Writer::Impl {
     if (zs == e - 1 || last) flush(L, z / e, int(zs + 1));
   }
 
-  // Where slice `received` of level 0, channel c, goes in the slab.
-  std::uint8_t* level0_slot(std::size_t c) {
-    Level& lv = levels[0];
+  // Where slice `received` of level 0, channel c, goes in the slab (a byte offset in it).
+  std::size_t level0_offset(std::size_t c) const {
+    const Level& lv = levels[0];
     const std::size_t plane = std::size_t(lv.dims[0]) * std::size_t(lv.dims[1]);
     const std::int64_t zs = lv.received % opt.brick_edge;
-    return lv.slab[c].data() + std::size_t(zs) * plane * channel_type_bytes(stored[c].type);
+    return std::size_t(zs) * plane * channel_type_bytes(stored[c].type);
   }
 
   // Level-1 slice z1 given directly (append_level1_slice): level 0 advances by the (one or two)
@@ -1037,16 +1037,11 @@ void Writer::append_slice(const std::vector<const void*>& channel_slices) {
     if (is_label_type(m.stored[c].type) && m.stored[c].type == ChannelType::kUint8) {
       // Narrowed straight into the level-0 slab; checked first, so a bad slice leaves the
       // slab as it was.
-      std::uint8_t* dst = m.level0_slot(c);
+      const std::size_t at = m.level0_offset(c);
       const auto* src = static_cast<const std::uint16_t*>(channel_slices[c]);
       check_labels_fit_uint8(src, plane, m.opt.dims[0], m.path, m.slices, m.stored[c].name);
-      constexpr std::size_t piece = Impl::kCopyPiece / 4;  // reads 2, writes 1 byte per ID
-      m.run_all(std::int64_t((plane + piece - 1) / piece), [&](std::int64_t k, WorkerScratch&) {
-        const std::size_t at = std::size_t(k) * piece, end = std::min(plane, at + piece);
-        for (std::size_t i = at; i < end; ++i)
-          dst[i] = std::uint8_t(src[i]);
-      });
-      in[c] = dst;
+      m.narrow_parallel(m.levels[0].slab[c], at, src, plane);
+      in[c] = m.levels[0].slab[c].data() + at;
     }
   }
   m.push(0, in);

@@ -12,10 +12,12 @@
 //   writer.finish();  // the file appears complete at "out/volume.vpk", or not at all
 //
 // Memory, whatever nz is: one level-0 brick row (dims[0] x dims[1] x brick_edge voxels of every
-// stored channel: the slab being filled; nothing else of that size), plus one slice of each
-// coarser level and two per level being reduced, one band of bricks (one brick row along y of
-// one channel of a coarser level) read back to be encoded, a few compressed bricks (each is
-// written as soon as it and the bricks before it are made) and one brick of scratch per thread.
+// stored channel: the slab being filled; nothing else of that size; its pages that have only
+// ever received zeros, most of the colour and labels outside the body, stay untouched and take
+// no memory), plus one slice of each coarser level and two per level being reduced, one band of
+// bricks (one brick row along y of one channel of a coarser level) read back to be encoded, a
+// few compressed bricks (each is written as soon as it and the bricks before it are made) and
+// one brick of scratch per thread.
 // The coarser levels' partly filled slabs (a third of a level-0 row at most, raw) are kept as
 // zstd-compressed strips (one per band of bricks of a slice: outside the body they shrink to
 // almost nothing), in memory up to WriterOptions::coarse_levels_memory_bytes, the rest in a
