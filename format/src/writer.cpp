@@ -25,11 +25,11 @@
 #include "vispack/common/error.h"
 #include "vispack/common/hash.h"
 #include "vispack/common/parallel.h"
+#include "vispack/common/zero_paged_buffer.h"
 #include "vispack/format/downsample.h"
 #include "vispack/format/geometry.h"
 #include "vispack/format/limits.h"
 #include "vispack/format/metadata.h"
-#include "zero_paged_buffer.h"
 
 namespace vispack::format {
 namespace {
@@ -519,7 +519,7 @@ struct Writer::Impl {
     std::uint64_t index_base = 0;
     // Level 0: per channel, the slab of edge slices being filled (the only full-size buffer):
     // fresh pages that zero slices leave untouched (zero_paged_buffer.h).
-    std::vector<detail::ZeroPagedBuffer> slab;
+    std::vector<ZeroPagedBuffer> slab;
     // Levels >= 1: channel c's slab in the spill store (its id there), and the last two slices
     // received (per channel, two planes), which the next level is reduced from.
     std::vector<int> spill_slab;
@@ -778,15 +778,14 @@ struct Writer::Impl {
       write(from, to - from);
     });
   }
-  void copy_parallel(detail::ZeroPagedBuffer& dst, std::size_t at, const std::uint8_t* src,
-                     std::size_t n) {
+  void copy_parallel(ZeroPagedBuffer& dst, std::size_t at, const std::uint8_t* src, std::size_t n) {
     write_parallel(at, n, kCopyPiece, [&](std::size_t from, std::size_t count) {
       dst.write(from, src + (from - at), count);
     });
   }
   // uint16 label IDs (checked to fit) narrowed to uint8 into the slab: reads 2, writes 1 byte
   // per ID, so a quarter of kCopyPiece per piece.
-  void narrow_parallel(detail::ZeroPagedBuffer& dst, std::size_t at, const std::uint16_t* src,
+  void narrow_parallel(ZeroPagedBuffer& dst, std::size_t at, const std::uint16_t* src,
                        std::size_t n) {
     static_assert((kCopyPiece / 4) % 65536 == 0, "pieces must be whole pages");
     write_parallel(at, n, kCopyPiece / 4, [&](std::size_t from, std::size_t count) {

@@ -15,6 +15,7 @@
 #include "vispack/common/hash.h"
 #include "vispack/common/parallel.h"
 #include "vispack/common/test_pause.h"
+#include "vispack/common/zero_paged_buffer.h"
 #include "vispack/format/downsample.h"
 #include "vispack/format/writer.h"
 #include "vispack/pipeline/labels.h"
@@ -270,6 +271,38 @@ struct SliceBuffers {
     if (plan.has_ct) channels.push_back(ct.data() + plane * std::size_t(z));
     if (plan.has_labels) channels.push_back(labels.data() + plane * std::size_t(z));
     return channels;
+  }
+};
+
+// A shard's level-0 slab of `slices` slices, channel by channel in append_slice's convention, in
+// fresh pages that slices' zero bytes leave untouched (common/zero_paged_buffer.h): outside the
+// body the colour and labels are zero, and the slab is ~1.1 GB at 2048x1216, whose page faults
+// were the largest part of a shard's system time (docs/BENCHMARKS.md "Fresh memory").
+struct SlabBuffers {
+  ZeroPagedBuffer rgba, ct, labels;
+  SlabBuffers(const PackPlan& plan, int slices) {
+    const std::size_t plane = std::size_t(plan.out_size.width) * plan.out_size.height;
+    rgba = ZeroPagedBuffer(plane * 4 * std::size_t(slices));
+    if (plan.has_ct) ct = ZeroPagedBuffer(plane * 2 * std::size_t(slices));
+    if (plan.has_labels) labels = ZeroPagedBuffer(plane * 2 * std::size_t(slices));
+  }
+  // Slice `z` of the slab := the one slice of `in`.
+  void put(const PackPlan& plan, int z, const SliceBuffers& in) {
+    const std::size_t plane = std::size_t(plan.out_size.width) * plan.out_size.height;
+    rgba.write(plane * 4 * std::size_t(z), in.rgba.data(), plane * 4);
+    if (plan.has_ct)
+      ct.write(plane * 2 * std::size_t(z), reinterpret_cast<const std::uint8_t*>(in.ct.data()),
+               plane * 2);
+    if (plan.has_labels)
+      labels.write(plane * 2 * std::size_t(z),
+                   reinterpret_cast<const std::uint8_t*>(in.labels.data()), plane * 2);
+  }
+  // The channel pointers of the slab (its first slice), in channel order.
+  std::vector<const void*> channels(const PackPlan& plan) const {
+    std::vector<const void*> out = {rgba.data()};
+    if (plan.has_ct) out.push_back(ct.data());
+    if (plan.has_labels) out.push_back(labels.data());
+    return out;
   }
 };
 
@@ -583,10 +616,10 @@ std::unique_ptr<StageRun> slab_run(const Config& config, const StageOptions& opt
 // Encodes slab bz from `buffers` (its slices, converted) and writes and records its slab file:
 // the one encoding of a pack shard, staged or streaming.
 void write_slab(const Config& config, const PackPlan& plan, StageRun& run, int bz,
-                const SliceBuffers& buffers, const std::string& input, std::uint64_t bytes) {
+                const SlabBuffers& buffers, const std::string& input, std::uint64_t bytes) {
   const std::string path = slab_path(config, bz);
   SlabContent slab;
-  slab.bricks = format::encode_level0_slab(plan.wo, bz, buffers.slice(plan, 0), &slab.level1);
+  slab.bricks = format::encode_level0_slab(plan.wo, bz, buffers.channels(plan), &slab.level1);
   write_slab_file(
       path,
       slab_header_json(plan, format::stored_channels_for(plan.wo), bz, slab.bricks.size(), input),
@@ -617,10 +650,13 @@ StageResult run_pack_shard(const Config& config, const StageOptions& options, co
       continue;
     }
     auto [first, last] = slab_slices(plan, bz);
-    SliceBuffers buffers(plan, last - first);
+    SlabBuffers buffers(plan, last - first);
+    SliceBuffers slice(plan, 1);
     std::uint64_t bytes = 0;
-    for (int k = first; k < last; ++k)
-      bytes += read_pack_slice(config, plan, k, buffers, k - first, ids_seen);
+    for (int k = first; k < last; ++k) {
+      bytes += read_pack_slice(config, plan, k, slice, 0, ids_seen);
+      buffers.put(plan, k - first, slice);
+    }
     write_slab(config, plan, *run, bz, buffers, input, bytes);
   }
   run->set_report("slabs", {s0, s1});
@@ -758,7 +794,7 @@ struct PackStream::Impl {
   bool shard = false;
   SliceRange range;
   int s0 = 0, s1 = 0;
-  std::unique_ptr<SliceBuffers> slab;
+  std::unique_ptr<SlabBuffers> slab;
   int slab_slices_held = 0;  // slices `slab` was sized for
   std::uint64_t slab_bytes = 0;
   Impl(const Config& c, const StageOptions& options) : config(c), plan(plan_pack(c, options)) {}
@@ -833,18 +869,12 @@ void PackStream::append(SlicePtr slice) {
   if (k == first) {
     if (!d.slab || d.slab_slices_held != last - first) {
       d.slab.reset();
-      d.slab = std::make_unique<SliceBuffers>(d.plan, last - first);
+      d.slab = std::make_unique<SlabBuffers>(d.plan, last - first);
       d.slab_slices_held = last - first;
     }
     d.slab_bytes = 0;
   }
-  const std::size_t plane = std::size_t(d.plan.out_size.width) * d.plan.out_size.height;
-  const std::size_t z = std::size_t(k - first);
-  const SliceBuffers& in = slice->buffers;
-  SliceBuffers& out = *d.slab;
-  std::copy(in.rgba.begin(), in.rgba.end(), out.rgba.begin() + std::ptrdiff_t(plane * 4 * z));
-  std::copy(in.ct.begin(), in.ct.end(), out.ct.begin() + std::ptrdiff_t(plane * z));
-  std::copy(in.labels.begin(), in.labels.end(), out.labels.begin() + std::ptrdiff_t(plane * z));
+  d.slab->put(d.plan, k - first, slice->buffers);
   d.slab_bytes += slice->bytes;
   slice.reset();
   if (k != last - 1) return;

@@ -1,12 +1,12 @@
-// Internal to the format writer: the level-0 slab's memory (writer.h, "Memory"). A buffer of
+// A buffer for a brick row of slices (the format Writer's level-0 slab, a pack shard's slab):
 // fresh anonymous pages (mmap), which the kernel maps to its one zero page until first written,
-// that remembers which of its pages hold only zero bytes. Writing zeros onto a page known to be
-// zero is skipped, so such a page is never touched: no page fault, no memory. Outside the body a
-// slice's colour and labels are zero (the pack zeroes the gel, issue 12): about 40 % of the
-// 4 KiB pages of a 2048x1216 slice of the real-size stack, whose slab (~1.1 GB) was otherwise
-// all faulted in on its first fill, and on a machine whose fresh pages are dear (a VM returning
-// free memory to its host: docs/BENCHMARKS.md "Fresh memory") that cost about what zstd takes to
-// compress the whole slab. Reading is plain memory access (untouched pages read as zero).
+// that remember which of them hold only zero bytes. Writing zeros onto a page known to be zero is
+// skipped, so such a page is never touched: no page fault, no memory. Outside the body a slice's
+// colour and labels are zero (the pack zeroes the gel, issue 12): about 40 % of the 4 KiB pages
+// of a 2048x1216 slice of the real-size stack, whose slab (~1.1 GB) was otherwise all faulted in
+// on its first fill, and on a machine whose fresh pages are dear (a VM returning free memory to
+// its host: docs/BENCHMARKS.md "Fresh memory") that cost about what zstd takes to compress the
+// whole slab. Reading is plain memory access (untouched pages read as zero).
 // Ownership: RAII (munmap). Thread-safety: write() and write_narrowed() may run at once on ranges
 // that share no page (page_size() granularity, offsets from data()); reads of data() must not
 // overlap a write.
@@ -16,7 +16,7 @@
 #include <cstdint>
 #include <memory>
 
-namespace vispack::format::detail {
+namespace vispack {
 
 class ZeroPagedBuffer {
  public:
@@ -53,4 +53,4 @@ class ZeroPagedBuffer {
   std::unique_ptr<std::uint8_t[]> page_zero_;  // 1: the page holds only zero bytes
 };
 
-}  // namespace vispack::format::detail
+}  // namespace vispack

@@ -1,4 +1,4 @@
-#include "zero_paged_buffer.h"
+#include "vispack/common/zero_paged_buffer.h"
 
 #include <sys/mman.h>
 #include <unistd.h>
@@ -9,7 +9,7 @@
 #include <type_traits>
 #include <utility>
 
-namespace vispack::format::detail {
+namespace vispack {
 namespace {
 
 // True when the n values at p are all zero (an OR over 8-byte words, which the compiler
@@ -118,4 +118,4 @@ void ZeroPagedBuffer::mark_written(std::size_t at, std::size_t n) {
             std::uint8_t(0));
 }
 
-}  // namespace vispack::format::detail
+}  // namespace vispack
