@@ -15,9 +15,12 @@ if perf record -e cpu-clock -o "$out/probe.data" -- true >/dev/null 2>&1; then
     perf record -e cpu-clock -F 499 -o "$out/$s.data" -- \
       "$bin/vispack-$s" --config "$phantom/config.json" --force --quiet >"$out/$s.log" 2>&1 ||
       { cat "$out/$s.log"; echo "profile.sh: vispack-$s failed" >&2; exit 1; }
+    # The report to a file, then its first 12 rows (a `| head` would end perf report or grep
+    # with SIGPIPE when there are more, and pipefail would take that for a failure).
     perf report -i "$out/$s.data" --stdio --no-children --sort dso,symbol --percent-limit 1.5 \
-      2>/dev/null | grep -E '^ +[0-9.]+%' | head -12 >"$out/$s.txt"
-    rm -f "$out/$s.data"
+      >"$out/$s.report" 2>/dev/null
+    awk '/^ +[0-9.]+%/ && n++ < 12' "$out/$s.report" >"$out/$s.txt"
+    rm -f "$out/$s.data" "$out/$s.report"
   done
   rm -f "$out/probe.data"
 else
@@ -26,7 +29,8 @@ else
     valgrind --tool=callgrind --callgrind-out-file="$out/$s.cg" \
       "$bin/vispack-$s" --config "$phantom/config.json" --force --quiet --threads 1 >"$out/$s.log" 2>&1 ||
       { cat "$out/$s.log"; echo "profile.sh: vispack-$s failed under callgrind" >&2; exit 1; }
-    callgrind_annotate "$out/$s.cg" 2>/dev/null | grep -E '^ *[0-9,]+ \(' | head -12 >"$out/$s.txt"
-    rm -f "$out/$s.cg"
+    callgrind_annotate "$out/$s.cg" >"$out/$s.report" 2>/dev/null
+    awk '/^ *[0-9,]+ \(/ && n++ < 12' "$out/$s.report" >"$out/$s.txt"
+    rm -f "$out/$s.cg" "$out/$s.report"
   done
 fi
