@@ -75,15 +75,14 @@ ZeroPagedBuffer& ZeroPagedBuffer::operator=(ZeroPagedBuffer&& other) noexcept {
 template <class T, class Copy>
 void ZeroPagedBuffer::write_pages(std::size_t at, const T* src, std::size_t n, Copy copy) {
   static_assert(std::is_same_v<T, std::uint8_t> || std::is_same_v<T, std::uint16_t>);
-  constexpr std::size_t out_bytes = 1;
   const std::size_t page = page_size();
-  const std::size_t end = at + n * out_bytes;
+  const std::size_t end = at + n;
   std::size_t pos = at;
   while (pos < end) {
     const std::size_t p = pos / page;
     const std::size_t page_end = std::min(end, (p + 1) * page);
-    const std::size_t count = (page_end - pos) / out_bytes;
-    const T* from = src + (pos - at) / out_bytes;
+    const std::size_t count = page_end - pos;
+    const T* from = src + (pos - at);
     const bool whole = pos == p * page && page_end == (p + 1) * page;
     if (whole && all_zero(from, count)) {
       if (!page_zero_[p]) {
@@ -109,13 +108,6 @@ void ZeroPagedBuffer::write_narrowed(std::size_t at, const std::uint16_t* src, s
     for (std::size_t i = 0; i < count; ++i)
       dst[i] = std::uint8_t(from[i]);
   });
-}
-
-void ZeroPagedBuffer::mark_written(std::size_t at, std::size_t n) {
-  if (n == 0) return;
-  const std::size_t page = page_size();
-  std::fill(page_zero_.get() + at / page, page_zero_.get() + (at + n - 1) / page + 1,
-            std::uint8_t(0));
 }
 
 }  // namespace vispack

@@ -29,7 +29,7 @@ class ZeroPagedBuffer {
   ZeroPagedBuffer(const ZeroPagedBuffer&) = delete;
   ZeroPagedBuffer& operator=(const ZeroPagedBuffer&) = delete;
 
-  std::uint8_t* data() { return data_; }
+  // Read-only: a byte written other than through write() would escape the zero-page record.
   const std::uint8_t* data() const { return data_; }
   std::size_t size() const { return size_; }
   static std::size_t page_size();
@@ -40,8 +40,6 @@ class ZeroPagedBuffer {
   // data()[at + i] = std::uint8_t(src[i]) for i in [0, n) (uint16 label IDs that fit in uint8),
   // with the same skipping.
   void write_narrowed(std::size_t at, const std::uint16_t* src, std::size_t n);
-  // Forgets what the pages of data()[at, at + n) hold (they were written through data()).
-  void mark_written(std::size_t at, std::size_t n);
 
  private:
   template <class T, class Copy>
