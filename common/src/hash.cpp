@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <cstring>
 #include <memory>
+#include <new>
 #include <vector>
 
 #include "vispack/common/error.h"
@@ -31,6 +32,28 @@ std::uint64_t xxh64_file(const std::string& path) {
     }
   }
   return XXH64_digest(state.get());
+}
+
+struct Xxh64Stream::State {
+  XXH64_state_t* xxh = nullptr;
+};
+
+Xxh64Stream::Xxh64Stream() : state_(std::make_unique<State>()) {
+  state_->xxh = XXH64_createState();
+  if (!state_->xxh) throw std::bad_alloc();
+  XXH64_reset(state_->xxh, 0);
+}
+
+Xxh64Stream::~Xxh64Stream() {
+  XXH64_freeState(state_->xxh);
+}
+
+void Xxh64Stream::update(const void* data, std::size_t size) {
+  if (size > 0) XXH64_update(state_->xxh, data, size);
+}
+
+std::uint64_t Xxh64Stream::digest() const {
+  return XXH64_digest(state_->xxh);
 }
 
 std::string hex64(std::uint64_t value) {

@@ -363,7 +363,8 @@ std::int64_t level0_slab_count(const WriterOptions& options) {
 
 std::vector<EncodedBrick> encode_level0_slab(const WriterOptions& options, std::int64_t bz,
                                              const std::vector<const void*>& channel_slabs,
-                                             std::vector<std::vector<std::uint8_t>>* level1) {
+                                             std::vector<std::vector<std::uint8_t>>* level1,
+                                             SlabLabels labels) {
   validate(options);
   const std::vector<ChannelSpec> stored = stored_channels_for(options);
   const std::int64_t e = options.brick_edge;
@@ -378,8 +379,9 @@ std::vector<EncodedBrick> encode_level0_slab(const WriterOptions& options, std::
   const int nzv = int(std::min(e, options.dims[2] - bz * e));
   const std::int64_t dx = options.dims[0], dy = options.dims[1];
   const std::size_t plane = std::size_t(dx) * std::size_t(dy);
-  // The stored bytes of each channel: the caller's slab itself, or (uint8 labels, handed over as
-  // uint16) a narrowed copy. No other copy: a level-0 slab of 2048x1216 slices is ~1 GB.
+  // The stored bytes of each channel: the caller's slab itself, or (uint8 labels handed over as
+  // uint16, SlabLabels::kUint16) a narrowed copy. No other copy: a level-0 slab of 2048x1216 slices
+  // is ~1 GB.
   std::vector<std::vector<std::uint8_t>> narrowed(stored.size());
   std::vector<const std::uint8_t*> slabs(stored.size());
   for (std::size_t c = 0; c < stored.size(); ++c) {
@@ -387,7 +389,7 @@ std::vector<EncodedBrick> encode_level0_slab(const WriterOptions& options, std::
       throw std::invalid_argument(
           cat("encode_level0_slab: null pointer for channel \"", stored[c].name, "\""));
     }
-    if (stored[c].type == ChannelType::kUint8) {  // labels arrive as uint16 (append_slice)
+    if (stored[c].type == ChannelType::kUint8 && labels == SlabLabels::kUint16) {
       narrowed[c].resize(plane * std::size_t(nzv));
       const auto* src = static_cast<const std::uint16_t*>(channel_slabs[c]);
       for (int z = 0; z < nzv; ++z)

@@ -274,28 +274,49 @@ struct SliceBuffers {
   }
 };
 
-// A shard's level-0 slab of `slices` slices, channel by channel in append_slice's convention, in
-// fresh pages that slices' zero bytes leave untouched (common/zero_paged_buffer.h): outside the
-// body the colour and labels are zero, and the slab is ~1.1 GB at 2048x1216, whose page faults
-// were the largest part of a shard's system time (docs/BENCHMARKS.md "Fresh memory").
+// A shard's level-0 slab of `slices` slices, channel by channel: colour and CT in append_slice's
+// convention, labels already in their stored type (uint8 when the palette's IDs fit it, as
+// format::stored_channels_for decides, else uint16), in fresh pages that slices' zero bytes leave
+// untouched (common/zero_paged_buffer.h): outside the body the colour and labels are zero, and
+// the slab is ~1 GB at 2048x1216, whose page faults were the largest part of a shard's system
+// time (docs/BENCHMARKS.md "Fresh memory"). Narrowing the labels here spares encode_level0_slab
+// its narrowed copy (160 MB of fresh pages a 64-slice slab).
 struct SlabBuffers {
   ZeroPagedBuffer rgba, ct, labels;
+  bool labels_uint8 = false;
   SlabBuffers(const PackPlan& plan, int slices) {
     const std::size_t plane = std::size_t(plan.out_size.width) * plan.out_size.height;
     rgba = ZeroPagedBuffer(plane * 4 * std::size_t(slices));
     if (plan.has_ct) ct = ZeroPagedBuffer(plane * 2 * std::size_t(slices));
-    if (plan.has_labels) labels = ZeroPagedBuffer(plane * 2 * std::size_t(slices));
+    if (plan.has_labels) {
+      labels_uint8 =
+          format::stored_channels_for(plan.wo).back().type == format::ChannelType::kUint8;
+      labels = ZeroPagedBuffer(plane * (labels_uint8 ? 1 : 2) * std::size_t(slices));
+    }
   }
-  // Slice `z` of the slab := the one slice of `in`.
-  void put(const PackPlan& plan, int z, const SliceBuffers& in) {
+  // Slice `z` of the slab (stack slice `stack_slice`, for errors) := the one slice of `in`.
+  // Throws InputError naming the slice and voxel when a label ID does not fit uint8 labels.
+  void put(const PackPlan& plan, int z, const SliceBuffers& in, int stack_slice) {
     const std::size_t plane = std::size_t(plan.out_size.width) * plan.out_size.height;
     rgba.write(plane * 4 * std::size_t(z), in.rgba.data(), plane * 4);
     if (plan.has_ct)
       ct.write(plane * 2 * std::size_t(z), reinterpret_cast<const std::uint8_t*>(in.ct.data()),
                plane * 2);
-    if (plan.has_labels)
+    if (plan.has_labels && labels_uint8) {
+      const std::uint16_t* ids = in.labels.data();
+      const auto high = std::find_if(ids, ids + plane, [](std::uint16_t id) { return id > 255; });
+      if (high != ids + plane) {
+        const std::size_t at = std::size_t(high - ids);
+        throw InputError(cat("slice ", stack_slice, ", channel \"labels\", voxel (",
+                             at % std::size_t(plan.out_size.width), ", ",
+                             at / std::size_t(plan.out_size.width), "): label ID ", *high,
+                             " does not fit the stored type uint8"));
+      }
+      labels.write_narrowed(plane * std::size_t(z), ids, plane);
+    } else if (plan.has_labels) {
       labels.write(plane * 2 * std::size_t(z),
                    reinterpret_cast<const std::uint8_t*>(in.labels.data()), plane * 2);
+    }
   }
   // The channel pointers of the slab (its first slice), in channel order.
   std::vector<const void*> channels(const PackPlan& plan) const {
@@ -463,30 +484,52 @@ void put(std::string& out, T value) {
 }
 
 void write_slab_file(const std::string& path, const std::string& header, const SlabContent& slab) {
-  const std::vector<format::EncodedBrick>& bricks = slab.bricks;
-  std::string out(kSlabMagic, 8);
-  put(out, std::uint32_t(header.size()));
-  out += header;
-  for (const auto& b : bricks) {
-    put(out, std::uint8_t(b.codec));
-    out.append(7, '\0');
-    out.append(reinterpret_cast<const char*>(b.min.data()), 8);
-    out.append(reinterpret_cast<const char*>(b.max.data()), 8);
-    put(out, b.checksum);
-    put(out, std::uint64_t(b.payload.size()));
-    put(out, std::uint32_t(b.labels.size()));
-    put(out, std::uint32_t(0));
-    out.append(reinterpret_cast<const char*>(b.labels.data()), b.labels.size() * 4);
-    out.append(reinterpret_cast<const char*>(b.payload.data()), b.payload.size());
+  // Streamed to the file (the slab's payloads are ~120 MB at 2048x1216: one string of the whole
+  // file cost a shard that much again in fresh pages, twice over while it grew); the trailing
+  // checksum is the xxh64 of every byte before it.
+  AtomicFile file(path);
+  Xxh64Stream sum;
+  std::string small;  // records and headers, handed to the file before each payload
+  auto emit_small = [&] {
+    sum.update(small.data(), small.size());
+    file.write(small);
+    small.clear();
+  };
+  auto emit = [&](const void* data, std::size_t size) {
+    emit_small();
+    sum.update(data, size);
+    file.write(data, size);
+  };
+  small.assign(kSlabMagic, 8);
+  put(small, std::uint32_t(header.size()));
+  small += header;
+  for (const auto& b : slab.bricks) {
+    put(small, std::uint8_t(b.codec));
+    small.append(7, '\0');
+    small.append(reinterpret_cast<const char*>(b.min.data()), 8);
+    small.append(reinterpret_cast<const char*>(b.max.data()), 8);
+    put(small, b.checksum);
+    put(small, std::uint64_t(b.payload.size()));
+    put(small, std::uint32_t(b.labels.size()));
+    put(small, std::uint32_t(0));
+    small.append(reinterpret_cast<const char*>(b.labels.data()), b.labels.size() * 4);
+    if (b.payload.size() < (std::size_t(1) << 16)) {
+      small.append(reinterpret_cast<const char*>(b.payload.data()), b.payload.size());
+    } else {
+      emit(b.payload.data(), b.payload.size());
+    }
+    if (small.size() >= (std::size_t(1) << 20)) emit_small();
   }
   for (const auto& l : slab.level1) {
     const std::vector<std::uint8_t> z = format::compress_bytes(l.data(), l.size(), kSlabLevel1Zstd);
-    put(out, std::uint64_t(l.size()));
-    put(out, std::uint64_t(z.size()));
-    out.append(reinterpret_cast<const char*>(z.data()), z.size());
+    put(small, std::uint64_t(l.size()));
+    put(small, std::uint64_t(z.size()));
+    emit(z.data(), z.size());
   }
-  put(out, xxh64(out.data(), out.size()));
-  write_file_atomic(path, out);
+  emit_small();
+  const std::uint64_t checksum = sum.digest();
+  file.write(&checksum, sizeof checksum);
+  file.commit();
 }
 
 // Reads and checks a slab file against what the merge expects (`header` = the JSON it would
@@ -619,7 +662,8 @@ void write_slab(const Config& config, const PackPlan& plan, StageRun& run, int b
                 const SlabBuffers& buffers, const std::string& input, std::uint64_t bytes) {
   const std::string path = slab_path(config, bz);
   SlabContent slab;
-  slab.bricks = format::encode_level0_slab(plan.wo, bz, buffers.channels(plan), &slab.level1);
+  slab.bricks = format::encode_level0_slab(plan.wo, bz, buffers.channels(plan), &slab.level1,
+                                           format::SlabLabels::kStored);
   write_slab_file(
       path,
       slab_header_json(plan, format::stored_channels_for(plan.wo), bz, slab.bricks.size(), input),
@@ -655,7 +699,7 @@ StageResult run_pack_shard(const Config& config, const StageOptions& options, co
     std::uint64_t bytes = 0;
     for (int k = first; k < last; ++k) {
       bytes += read_pack_slice(config, plan, k, slice, 0, ids_seen);
-      buffers.put(plan, k - first, slice);
+      buffers.put(plan, k - first, slice, k);
     }
     write_slab(config, plan, *run, bz, buffers, input, bytes);
   }
@@ -874,7 +918,7 @@ void PackStream::append(SlicePtr slice) {
     }
     d.slab_bytes = 0;
   }
-  d.slab->put(d.plan, k - first, slice->buffers);
+  d.slab->put(d.plan, k - first, slice->buffers, k);
   d.slab_bytes += slice->bytes;
   slice.reset();
   if (k != last - 1) return;

@@ -202,7 +202,24 @@ cv::Mat read_oiio_unguarded(const std::string& path) {
   const OIIO::TypeDesc want = eight_bit ? OIIO::TypeDesc::UINT8 : OIIO::TypeDesc::UINT16;
   check_size(path, spec.width, spec.height, file_channels, 4);
   cv::Mat image(spec.height, spec.width, CV_MAKETYPE(eight_bit ? CV_8U : CV_16U, channels));
-  const bool ok = input->read_image(0, 0, 0, channels, want, image.data);
+  // Scanline files whose samples are already what we keep are read straight into `image` (or,
+  // with an alpha to drop, into a same-type buffer of every channel): OpenImageIO 2.4's
+  // read_image stages them through a ~64 MB buffer of its own, allocated and freed (mmap'd,
+  // above glibc's mmap threshold) for every slice, so each slice faulted in fresh pages.
+  const bool native = spec.format == want && spec.channelformats.empty() && spec.tile_width == 0;
+  bool ok = false;
+  if (native && file_channels == channels) {
+    ok = input->read_native_scanlines(0, 0, spec.y, spec.y + spec.height, 0, image.data);
+  } else if (native) {
+    cv::Mat all(spec.height, spec.width, CV_MAKETYPE(image.depth(), file_channels));
+    ok = input->read_native_scanlines(0, 0, spec.y, spec.y + spec.height, 0, all.data);
+    if (ok) {
+      const int pairs[] = {0, 0, 1, 1, 2, 2};  // colour (or grey) kept, alpha dropped
+      cv::mixChannels(&all, 1, &image, 1, pairs, std::size_t(channels));
+    }
+  } else {
+    ok = input->read_image(0, 0, 0, channels, want, image.data);
+  }
   if (!ok) {
     std::string why = one_line(input->geterror());
     if (why.empty()) why = "read failed";

@@ -270,3 +270,20 @@ TEST(Hash, XxHash64KnownVectors) {
   write_file_atomic(dir / "h", "vispack");
   EXPECT_EQ(xxh64_file(dir / "h"), xxh64("vispack", 7));
 }
+
+TEST(Hash, StreamOfPiecesEqualsTheWhole) {
+  std::string bytes(100000, '\0');
+  for (std::size_t i = 0; i < bytes.size(); ++i)
+    bytes[i] = char((i * 131 + i / 7) & 0xff);
+  Xxh64Stream none;
+  EXPECT_EQ(none.digest(), xxh64("", 0));
+  Xxh64Stream pieces;
+  std::size_t at = 0;
+  for (std::size_t n : {0, 1, 31, 32, 33, 4096, 50000}) {  // sizes across xxHash's 32-byte stripes
+    pieces.update(bytes.data() + at, n);
+    at += n;
+  }
+  pieces.update(bytes.data() + at, bytes.size() - at);
+  EXPECT_EQ(pieces.digest(), xxh64(bytes.data(), bytes.size()));
+  EXPECT_NE(pieces.digest(), xxh64(bytes.data(), bytes.size() - 1));
+}

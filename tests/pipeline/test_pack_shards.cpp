@@ -9,6 +9,7 @@
 #include <memory>
 
 #include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
 
 #include "test_support.h"
 #include "vispack/common/atomic_file.h"
@@ -17,6 +18,8 @@
 #include "vispack/phantom/phantom.h"
 #include "vispack/pipeline/pack.h"
 #include "vispack/pipeline/run.h"
+#include "vispack/pipeline/slice_io.h"
+#include "vispack/pipeline/work_layout.h"
 
 using namespace vispack;
 using namespace vispack::pipeline;
@@ -285,4 +288,27 @@ TEST_F(PackShards, OldSlabVersionRefused) {
   EXPECT_NE(message.find("slab_0002.vpkslab: slab file version 1"), std::string::npos) << message;
   EXPECT_NE(message.find("--slices 16:24"), std::string::npos) << message;
   EXPECT_FALSE(fs::exists(config_.output));
+}
+
+// A shard narrows the labels to uint8 as it fills its slab (the palette's IDs fit it): an
+// intermediate holding an ID above 255 stops the shard with an error naming the slice, the voxel
+// and the ID, and writes no slab file for that slab; restored, the shard and merge match again.
+TEST_F(PackShards, LabelAboveUint8StopsTheShardNamingSliceAndVoxel) {
+  const std::string path = labels_path(config_, 9);
+  const std::string original = read_file(path);
+  cv::Mat ids = read_slice(path);
+  ASSERT_EQ(ids.type(), CV_16UC1);
+  ids.at<std::uint16_t>(5, 7) = 300;
+  fs::remove(path);
+  write_image(path, ids);
+  std::string message = error_of<InputError>([&] { run_pack_stage(config_, shard("0:12")); });
+  EXPECT_NE(message.find("slice 9"), std::string::npos) << message;
+  EXPECT_NE(message.find("voxel (7, 5)"), std::string::npos) << message;
+  EXPECT_NE(message.find("label ID 300 does not fit the stored type uint8"), std::string::npos)
+      << message;
+  EXPECT_TRUE(fs::exists(slab(0))) << "slab 0 (slices 0-7) was whole before slice 9";
+  EXPECT_FALSE(fs::exists(slab(1)));
+  fs::remove(path);
+  write_file_atomic(path, original);
+  EXPECT_TRUE(shards_then_merge({"0:12", "12:24"}) == *whole_);
 }

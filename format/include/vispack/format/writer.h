@@ -87,11 +87,16 @@ std::vector<ChannelSpec> stored_channels_for(const WriterOptions& options);
 // Number of level-0 slabs (brick rows along z): ceil(dims[2] / brick_edge).
 std::int64_t level0_slab_count(const WriterOptions& options);
 
+// How encode_level0_slab receives label channels: in append_slice's convention (uint16), or
+// already in their stored type (stored_channels_for: uint8 when the label table's IDs fit it).
+enum class SlabLabels { kUint16, kStored };
+
 // Encodes the level-0 bricks of slab `bz` (slices [bz * E, min((bz + 1) * E, dims[2]))) as a
 // Writer with the same options stores them: byte-identical payloads, min, max, checksums and
 // label sets, whatever `options.threads`. `channel_slabs[c]` holds the slab's slices of channel c
-// one after the other, in append_slice's convention (labels as uint16). Returns the bricks in
-// index order within the slab: channel, then by, then bx (bx fastest).
+// one after the other, in append_slice's convention, labels as `labels` says (kStored spares the
+// narrowed copy of a uint16 slab: its IDs are then not checked). Returns the bricks in index
+// order within the slab: channel, then by, then bx (bx fastest).
 // With `level1` non-null, also gives the slab's level-1 slices as the Writer reduces them: per
 // stored channel, ceil(nzv / 2) slices of ceil(dims[0] / 2) x ceil(dims[1] / 2) voxels of the
 // stored type, one after the other (what Writer::append_level1_slice takes); empty vectors when
@@ -100,7 +105,8 @@ std::int64_t level0_slab_count(const WriterOptions& options);
 // (a label ID does not fit the stored type).
 std::vector<EncodedBrick> encode_level0_slab(
     const WriterOptions& options, std::int64_t bz, const std::vector<const void*>& channel_slabs,
-    std::vector<std::vector<std::uint8_t>>* level1 = nullptr);
+    std::vector<std::vector<std::uint8_t>>* level1 = nullptr,
+    SlabLabels labels = SlabLabels::kUint16);
 
 // Decodes `brick` into brick_edge^3 voxels of `stored` type at `out` (brick_edge^3 *
 // channel_type_bytes(stored) bytes): the merge of a sharded pack rebuilds level 0 from it to
