@@ -1,9 +1,12 @@
 #include "vispack/pipeline/pack.h"
 
 #include <algorithm>
+#include <cerrno>
+#include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <map>
+#include <memory>
 #include <set>
 #include <stdexcept>
 #include <tuple>
@@ -538,27 +541,56 @@ void write_slab_file(const std::string& path, const std::string& header, const S
 SlabContent read_slab_file(const std::string& path, const std::string& expected_header,
                            const std::string& expected_input, std::pair<int, int> slices,
                            const std::vector<std::size_t>& level1_bytes) {
-  const std::string data = read_file(path);
+  // Read twice from the page cache, never whole into memory: once to check the trailing
+  // checksum, then record by record straight into the bricks' payloads (a 64-slice slab of
+  // 2048x1216 slices is ~120 MB; a copy of the whole file cost the merge, which is serial, that
+  // much again in fresh pages).
   auto bad = [&](const std::string& what) { return FormatError(cat(path, ": ", what)); };
-  if (data.size() < 8 + 4 + 8 || std::memcmp(data.data(), kSlabMagic, 8) != 0)
-    throw bad("not a vispack slab file (bad magic or truncated)");
-  std::uint64_t sum = 0;
-  std::memcpy(&sum, data.data() + data.size() - 8, 8);
-  if (xxh64(data.data(), data.size() - 8) != sum)
-    throw bad("checksum mismatch (corrupt or truncated)");
-  std::size_t pos = 8;
-  const std::size_t end = data.size() - 8;
-  auto take = [&](void* dst, std::size_t n) {
+  std::unique_ptr<std::FILE, int (*)(std::FILE*)> file(std::fopen(path.c_str(), "rb"),
+                                                       &std::fclose);
+  if (!file) throw IoError(cat(path, ": cannot open: ", std::strerror(errno)));
+  std::error_code ec;
+  const std::uint64_t file_size = fs::file_size(path, ec);
+  if (ec) throw IoError(cat(path, ": cannot read its size: ", ec.message()));
+  auto read_exactly = [&](void* dst, std::size_t n) {
+    if (n > 0 && std::fread(dst, 1, n, file.get()) != n) {
+      if (std::ferror(file.get())) throw IoError(cat(path, ": read failed"));
+      throw bad("truncated (the file shrank while being read)");
+    }
+  };
+  {
+    char magic[8] = {};
+    if (file_size < 8 + 4 + 8) throw bad("not a vispack slab file (bad magic or truncated)");
+    read_exactly(magic, 8);
+    if (std::memcmp(magic, kSlabMagic, 8) != 0)
+      throw bad("not a vispack slab file (bad magic or truncated)");
+    Xxh64Stream hash;
+    hash.update(magic, 8);
+    std::vector<char> buffer(std::size_t(1) << 20);
+    for (std::uint64_t left = file_size - 16; left > 0;) {
+      const std::size_t n = std::size_t(std::min<std::uint64_t>(left, buffer.size()));
+      read_exactly(buffer.data(), n);
+      hash.update(buffer.data(), n);
+      left -= n;
+    }
+    std::uint64_t sum = 0;
+    read_exactly(&sum, 8);
+    if (hash.digest() != sum) throw bad("checksum mismatch (corrupt or truncated)");
+    if (std::fseek(file.get(), 8, SEEK_SET) != 0) throw IoError(cat(path, ": seek failed"));
+  }
+  std::uint64_t pos = 8;
+  const std::uint64_t end = file_size - 8;
+  auto take = [&](void* dst, std::uint64_t n) {
     if (n > end - pos) throw bad("truncated");
-    if (n == 0) return;  // an empty label set: no bytes, and its data() may be null (memcpy UB)
-    std::memcpy(dst, data.data() + pos, n);
+    read_exactly(dst, std::size_t(n));  // an empty label set: no bytes (its data() may be null)
     pos += n;
   };
   std::uint32_t header_size = 0;
   take(&header_size, 4);
   if (header_size > end - pos) throw bad("truncated header");
-  json header = json::parse(data.substr(pos, header_size), nullptr, false);
-  pos += header_size;
+  std::string header_text(header_size, '\0');
+  take(header_text.data(), header_size);
+  json header = json::parse(header_text, nullptr, false);
   if (!header.is_object() || !header.contains("input")) throw bad("bad header");
   if (header.value("version", 0) != kSlabVersion) {
     throw InputError(cat(path, ": slab file version ", header.value("version", 0),
@@ -601,8 +633,8 @@ SlabContent read_slab_file(const std::string& path, const std::string& expected_
     b.labels.resize(labels);
     take(b.labels.data(), std::size_t(labels) * 4);
     if (size > end - pos) throw bad("truncated payload");
-    b.payload.assign(data.begin() + std::ptrdiff_t(pos), data.begin() + std::ptrdiff_t(pos + size));
-    pos += size;
+    b.payload.resize(std::size_t(size));
+    take(b.payload.data(), size);
   }
   for (std::size_t c = 0; c < level1_bytes.size(); ++c) {
     std::uint64_t raw = 0, size = 0;
@@ -612,11 +644,11 @@ SlabContent read_slab_file(const std::string& path, const std::string& expected_
       throw bad(
           cat("level-1 slices of channel ", c, ": ", raw, " bytes, expected ", level1_bytes[c]));
     if (size > end - pos) throw bad("truncated level-1 slices");
+    std::vector<std::uint8_t> z(static_cast<std::size_t>(size));
+    take(z.data(), size);
     std::vector<std::uint8_t> l(level1_bytes[c]);
-    format::decompress_bytes(reinterpret_cast<const std::uint8_t*>(data.data() + pos),
-                             std::size_t(size), l.data(), l.size(),
+    format::decompress_bytes(z.data(), z.size(), l.data(), l.size(),
                              cat(path, ": level-1 slices of channel ", c));
-    pos += size;
     slab.level1.push_back(std::move(l));
   }
   if (pos != end) throw bad("trailing bytes after the level-1 slices");
