@@ -4,10 +4,12 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cerrno>
 #include <cstring>
 #include <filesystem>
+#include <vector>
 
 #include "vispack/common/error.h"
 
@@ -58,6 +60,49 @@ void AtomicFile::write(const void* data, std::size_t size) {
     bytes += n;
     size -= std::size_t(n);
     size_ += std::uint64_t(n);
+  }
+}
+
+void AtomicFile::append_from(int fd, std::uint64_t offset, std::uint64_t size,
+                             const std::string& source, bool copy_range) {
+  auto short_source = [&](std::uint64_t at) {
+    return IoError(cat(source, ": ends at byte ", at, ", before ", offset + size,
+                       " (the range being copied into ", path_, ")"));
+  };
+  while (size > 0 && copy_range) {
+    loff_t in = loff_t(offset);
+    const ssize_t n = ::copy_file_range(fd, &in, fd_, nullptr, std::size_t(size), 0);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      // Refused for this pair of files (other file systems, an old kernel, a special file):
+      // copied by hand below. Anything else is a real failure.
+      if (errno == EXDEV || errno == EINVAL || errno == ENOSYS || errno == EOPNOTSUPP ||
+          errno == EBADF || errno == ETXTBSY)
+        copy_range = false;
+      else
+        throw IoError(cat(path_, ": copying ", size, " bytes from ", source, " failed after ",
+                          size_, " bytes: ", std::strerror(errno)));
+      break;
+    }
+    if (n == 0) throw short_source(offset);
+    offset += std::uint64_t(n);
+    size -= std::uint64_t(n);
+    size_ += std::uint64_t(n);
+  }
+  if (size == 0) return;
+  std::vector<char> buffer(std::size_t(std::min<std::uint64_t>(size, std::uint64_t(1) << 20)));
+  while (size > 0) {
+    const ssize_t n =
+        ::pread(fd, buffer.data(), std::size_t(std::min<std::uint64_t>(size, buffer.size())),
+                off_t(offset));
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      throw IoError(cat(source, ": read failed at byte ", offset, ": ", std::strerror(errno)));
+    }
+    if (n == 0) throw short_source(offset);
+    write(buffer.data(), std::size_t(n));
+    offset += std::uint64_t(n);
+    size -= std::uint64_t(n);
   }
 }
 

@@ -37,6 +37,18 @@ std::size_t ZeroPagedBuffer::page_size() {
   return size;
 }
 
+bool ZeroPagedBuffer::known_zero(const std::uint8_t* p, std::size_t n) const {
+  if (n == 0 || !data_ || p < data_ || std::size_t(p - data_) > size_ ||
+      n > size_ - std::size_t(p - data_))
+    return false;
+  const std::size_t page = page_size();
+  const std::size_t first = std::size_t(p - data_) / page;
+  const std::size_t last = (std::size_t(p - data_) + n - 1) / page;
+  for (std::size_t i = first; i <= last; ++i)
+    if (!page_zero_[i]) return false;
+  return true;
+}
+
 ZeroPagedBuffer::ZeroPagedBuffer(std::size_t size) : size_(size) {
   if (size == 0) return;
   const std::size_t page = page_size();

@@ -5,6 +5,7 @@
 #include <vector>
 
 #include "vispack/common/parallel.h"
+#include "vispack/common/zero_paged_buffer.h"
 
 namespace vispack::format {
 namespace {
@@ -185,15 +186,11 @@ inline T majority8(const T* const r[4]) {
   return T(reduce_majority(c, 8));
 }
 
-// Reduces output row y where all of its rows' children exist (2 * y + 1 < dy and nzc == 2),
-// for x in [0, full_x); the caller handles x >= full_x.
-void downsample_row_full(ChannelType type, const std::uint8_t* src, std::int64_t dx,
-                         std::int64_t dy, std::int64_t y, std::int64_t full_x, std::uint8_t* dst) {
-  const std::size_t bytes = channel_type_bytes(type);
-  const std::size_t plane = std::size_t(dx) * std::size_t(dy) * bytes;
-  const std::size_t row = std::size_t(dx) * bytes;
-  const std::uint8_t* base = src + std::size_t(2 * y) * row;
-  const std::uint8_t* rows[4] = {base, base + row, base + plane, base + plane + row};
+// Reduces output voxels [0, full_x) of a row whose children all exist, from the four source rows
+// of their children (rows 2y and 2y + 1 of both slices, each from its first child's voxel on);
+// the caller handles the rest.
+void downsample_row_full(ChannelType type, const std::uint8_t* const rows[4], std::int64_t full_x,
+                         std::uint8_t* dst) {
   switch (type) {
     case ChannelType::kRgba8:
       for (std::int64_t x = 0; x < full_x; ++x) {
@@ -251,15 +248,46 @@ void downsample_row_full(ChannelType type, const std::uint8_t* src, std::int64_t
 }  // namespace
 
 void downsample_slice(ChannelType type, const std::uint8_t* src, int nzc, std::int64_t dx,
-                      std::int64_t dy, std::uint8_t* dst, int threads) {
+                      std::int64_t dy, std::uint8_t* dst, int threads,
+                      const ZeroPagedBuffer* zeros) {
   const std::int64_t ox = ceil_div(dx, 2), oy = ceil_div(dy, 2);
   const std::size_t bytes = channel_type_bytes(type);
+  const std::size_t row_bytes = std::size_t(dx) * bytes;
+  const std::size_t plane = row_bytes * std::size_t(dy);
+  // Output voxels per run whose children span one page of each source row.
+  const std::int64_t run =
+      std::max<std::int64_t>(1, std::int64_t(ZeroPagedBuffer::page_size() / (2 * bytes)));
+  // Children of one run in pages known to be zero are read from here instead.
+  const std::vector<std::uint8_t> zero_run(zeros ? std::size_t(2 * run) * bytes : 0, 0);
   auto row = [&](std::int64_t y) {
     std::uint8_t* out = dst + std::size_t(y) * std::size_t(ox) * bytes;
     std::int64_t x = 0;
     if (nzc == 2 && 2 * y + 1 < dy) {
       x = dx / 2;  // output voxels with both x children
-      downsample_row_full(type, src, dx, dy, y, x, out);
+      const std::uint8_t* base = src + std::size_t(2 * y) * row_bytes;
+      const std::uint8_t* rows[4] = {base, base + row_bytes, base + plane,
+                                     base + plane + row_bytes};
+      if (!zeros) {
+        downsample_row_full(type, rows, x, out);
+      } else {
+        for (std::int64_t x0 = 0; x0 < x; x0 += run) {
+          const std::int64_t x1 = std::min(x, x0 + run);
+          const std::size_t from = std::size_t(2 * x0) * bytes;
+          const std::size_t n = std::size_t(2 * (x1 - x0)) * bytes;
+          const std::uint8_t* run_rows[4];
+          int zero_rows = 0;
+          for (int k = 0; k < 4; ++k) {
+            const bool zero = zeros->known_zero(rows[k] + from, n);
+            run_rows[k] = zero ? zero_run.data() : rows[k] + from;
+            zero_rows += zero;
+          }
+          std::uint8_t* run_out = out + std::size_t(x0) * bytes;
+          if (zero_rows == 4)
+            std::memset(run_out, 0, std::size_t(x1 - x0) * bytes);
+          else
+            downsample_row_full(type, run_rows, x1 - x0, run_out);
+        }
+      }
     }
     for (; x < ox; ++x)
       reduce_generic(type, src, nzc, dx, dy, x, y, out + std::size_t(x) * bytes);

@@ -65,24 +65,11 @@ struct WorkerScratch {
   WorkerScratch& operator=(const WorkerScratch&) = delete;
 };
 
-// Uninitialised byte buffer (the payload is always fully written before use).
-struct Payload {
-  std::unique_ptr<std::uint8_t[]> data;
-  std::size_t size = 0;
-  void assign(const std::uint8_t* src, std::size_t n) {
-    data.reset(new std::uint8_t[n]);
-    std::memcpy(data.get(), src, n);
-    size = n;
-  }
-  void clear() {
-    data.reset();
-    size = 0;
-  }
-};
-
 struct BrickResult {
   IndexEntry entry{};
-  Payload payload;  // stored bytes (empty for uniform)
+  // Stored bytes (empty for uniform): allocated to size and copied into (assign from a range
+  // does not zero them first), moved on to an EncodedBrick as they are.
+  std::vector<std::uint8_t> payload;
   std::vector<std::uint32_t> labels;
 };
 
@@ -232,6 +219,9 @@ struct ChannelBlock {
   const std::uint8_t* data = nullptr;
   std::int64_t y_first = 0;
   std::int64_t rows = 0;
+  // The buffer `data` lies in when it knows which of its pages hold only zeros (the level-0
+  // slab): rows in such pages are gathered as zeros without being read (never faulted in).
+  const ZeroPagedBuffer* zeros = nullptr;
 };
 
 // Makes brick `i` (index order within the slab: channel, by, bx) of `src` from `block`, the
@@ -272,9 +262,13 @@ void encode_brick(const WriterOptions& opt, const std::vector<ChannelSpec>& stor
       }
       const std::uint8_t* src =
           slab + ((std::size_t(z) * block.rows + (y0 + y - block.y_first)) * dx + x0) * bytes;
-      std::memcpy(dst, src, std::size_t(nxv) * bytes);
+      const std::size_t n = std::size_t(nxv) * bytes;
+      if (block.zeros && block.zeros->known_zero(src, n))
+        std::memset(dst, 0, n);
+      else
+        std::memcpy(dst, src, n);
       for (std::int64_t x = nxv; x < e; ++x) {
-        std::memcpy(dst + std::size_t(x) * bytes, src + std::size_t(nxv - 1) * bytes, bytes);
+        std::memcpy(dst + std::size_t(x) * bytes, dst + std::size_t(nxv - 1) * bytes, bytes);
       }
     }
   }
@@ -307,7 +301,7 @@ void encode_brick(const WriterOptions& opt, const std::vector<ChannelSpec>& stor
       en.codec = std::uint8_t(Codec::kZstd);
     }
   }
-  r.payload.assign(stored_bytes, stored_size);
+  r.payload.assign(stored_bytes, stored_bytes + stored_size);
   en.stored_size = stored_size;
   en.checksum = xxh64(stored_bytes, stored_size);
 }
@@ -365,6 +359,20 @@ std::vector<EncodedBrick> encode_level0_slab(const WriterOptions& options, std::
                                              const std::vector<const void*>& channel_slabs,
                                              std::vector<std::vector<std::uint8_t>>* level1,
                                              SlabLabels labels) {
+  Level1SliceSink sink;
+  if (level1) {
+    level1->assign(stored_channels_for(options).size(), {});
+    sink = [level1](std::size_t c, int, const std::uint8_t* slice, std::size_t bytes) {
+      (*level1)[c].insert((*level1)[c].end(), slice, slice + bytes);
+    };
+  }
+  return encode_level0_slab(options, bz, channel_slabs, sink, labels, {});
+}
+
+std::vector<EncodedBrick> encode_level0_slab(
+    const WriterOptions& options, std::int64_t bz, const std::vector<const void*>& channel_slabs,
+    const Level1SliceSink& level1, SlabLabels labels,
+    const std::vector<const ZeroPagedBuffer*>& zero_pages) {
   validate(options);
   const std::vector<ChannelSpec> stored = stored_channels_for(options);
   const std::int64_t e = options.brick_edge;
@@ -376,6 +384,10 @@ std::vector<EncodedBrick> encode_level0_slab(const WriterOptions& options, std::
     throw std::invalid_argument(cat("encode_level0_slab: got ", channel_slabs.size(),
                                     " channel pointers, expected ", stored.size()));
   }
+  if (!zero_pages.empty() && zero_pages.size() != stored.size()) {
+    throw std::invalid_argument(cat("encode_level0_slab: got ", zero_pages.size(),
+                                    " zero-page buffers, expected ", stored.size()));
+  }
   const int nzv = int(std::min(e, options.dims[2] - bz * e));
   const std::int64_t dx = options.dims[0], dy = options.dims[1];
   const std::size_t plane = std::size_t(dx) * std::size_t(dy);
@@ -384,6 +396,7 @@ std::vector<EncodedBrick> encode_level0_slab(const WriterOptions& options, std::
   // is ~1 GB.
   std::vector<std::vector<std::uint8_t>> narrowed(stored.size());
   std::vector<const std::uint8_t*> slabs(stored.size());
+  std::vector<const ZeroPagedBuffer*> zeros(stored.size(), nullptr);
   for (std::size_t c = 0; c < stored.size(); ++c) {
     if (!channel_slabs[c]) {
       throw std::invalid_argument(
@@ -399,6 +412,7 @@ std::vector<EncodedBrick> encode_level0_slab(const WriterOptions& options, std::
       slabs[c] = narrowed[c].data();
     } else {
       slabs[c] = static_cast<const std::uint8_t*>(channel_slabs[c]);
+      if (!zero_pages.empty()) zeros[c] = zero_pages[c];
     }
   }
   const std::int64_t gx = ceil_div(dx, e), gy = ceil_div(dy, e);
@@ -408,27 +422,28 @@ std::vector<EncodedBrick> encode_level0_slab(const WriterOptions& options, std::
   const int threads = int(std::min<std::int64_t>(resolve_threads(options.threads), items));
   parallel_for(threads, threads, [&](std::int64_t t) {
     WorkerScratch scratch;
-    for (std::int64_t i = t; i < items; i += threads)
+    for (std::int64_t i = t; i < items; i += threads) {
+      const std::size_t c = std::size_t(i / (gx * gy));
       encode_brick(options, stored, "encode_level0_slab", source,
-                   ChannelBlock{slabs[std::size_t(i / (gx * gy))], 0, dy}, i, scratch,
-                   results[std::size_t(i)]);
+                   ChannelBlock{slabs[c], 0, dy, zeros[c]}, i, scratch, results[std::size_t(i)]);
+    }
   });
-  if (level1) {
+  if (level1 && format::level_count_for(options.dims, int(e)) > 1) {
     // The slab's level-1 slices, reduced as Writer::Impl::push reduces them (pairs of slices; the
-    // volume's last slice alone when dims[2] is odd). Slabs start at even slices (even edge).
-    level1->assign(stored.size(), {});
-    if (format::level_count_for(options.dims, int(e)) > 1) {
-      const std::int64_t hx = ceil_div(dx, 2), hy = ceil_div(dy, 2);
-      const int n1 = int(ceil_div(nzv, 2));
-      for (std::size_t c = 0; c < stored.size(); ++c) {
-        const std::size_t bytes = channel_type_bytes(stored[c].type);
-        auto& dst = (*level1)[c];
-        dst.resize(std::size_t(hx) * std::size_t(hy) * std::size_t(n1) * bytes);
-        for (int k = 0; k < n1; ++k)
-          downsample_slice(stored[c].type, slabs[c] + std::size_t(2 * k) * plane * bytes,
-                           std::min(2, nzv - 2 * k), dx, dy,
-                           dst.data() + std::size_t(k) * std::size_t(hx * hy) * bytes,
-                           resolve_threads(options.threads));
+    // volume's last slice alone when dims[2] is odd), one at a time into one slice's buffer.
+    // Slabs start at even slices (even edge).
+    const std::int64_t hx = ceil_div(dx, 2), hy = ceil_div(dy, 2);
+    const int n1 = int(ceil_div(nzv, 2));
+    std::vector<std::uint8_t> slice;
+    for (std::size_t c = 0; c < stored.size(); ++c) {
+      const std::size_t bytes = channel_type_bytes(stored[c].type);
+      const std::size_t slice_bytes = std::size_t(hx) * std::size_t(hy) * bytes;
+      if (slice.size() < slice_bytes) slice.resize(slice_bytes);
+      for (int k = 0; k < n1; ++k) {
+        downsample_slice(stored[c].type, slabs[c] + std::size_t(2 * k) * plane * bytes,
+                         std::min(2, nzv - 2 * k), dx, dy, slice.data(),
+                         resolve_threads(options.threads), zeros[c]);
+        level1(c, k, slice.data(), slice_bytes);
       }
     }
   }
@@ -440,9 +455,7 @@ std::vector<EncodedBrick> encode_level0_slab(const WriterOptions& options, std::
     std::memcpy(b.min.data(), en.min, 8);
     std::memcpy(b.max.data(), en.max, 8);
     b.checksum = en.checksum;
-    if (results[i].payload.size)
-      b.payload.assign(results[i].payload.data.get(),
-                       results[i].payload.data.get() + results[i].payload.size);
+    b.payload = std::move(results[i].payload);
     b.labels = std::move(results[i].labels);
   }
   return out;
@@ -480,11 +493,95 @@ void decode_encoded_brick(const EncodedBrick& brick, ChannelType stored, int bri
 }
 
 std::vector<std::uint8_t> compress_bytes(const void* data, std::size_t size, int level) {
-  std::vector<std::uint8_t> out(ZSTD_compressBound(size));
-  const std::size_t n = ZSTD_compress(out.data(), out.size(), data, size, level);
+  // Into an uninitialised buffer of the compress bound (a vector of that size would be zeroed
+  // first: its pages all faulted in for a frame that is mostly far smaller), then copied out.
+  const std::size_t bound = ZSTD_compressBound(size);
+  std::unique_ptr<std::uint8_t[]> buffer(new std::uint8_t[bound]);
+  const std::size_t n = ZSTD_compress(buffer.get(), bound, data, size, level);
   if (ZSTD_isError(n)) throw Error(cat("zstd compression failed: ", ZSTD_getErrorName(n)));
-  out.resize(n);
-  return out;
+  return std::vector<std::uint8_t>(buffer.get(), buffer.get() + n);
+}
+
+ZstdFrameWriter::ZstdFrameWriter(std::uint64_t size, int level) : left_(size) {
+  cctx_ = ZSTD_createCCtx();
+  if (!cctx_) throw std::bad_alloc();
+  std::size_t r = ZSTD_CCtx_setParameter(cctx_, ZSTD_c_compressionLevel, level);
+  if (!ZSTD_isError(r)) r = ZSTD_CCtx_setPledgedSrcSize(cctx_, size);
+  if (ZSTD_isError(r)) {
+    ZSTD_freeCCtx(cctx_);
+    throw Error(cat("zstd frame setup failed: ", ZSTD_getErrorName(r)));
+  }
+}
+
+ZstdFrameWriter::~ZstdFrameWriter() {
+  ZSTD_freeCCtx(cctx_);
+}
+
+void ZstdFrameWriter::write(const void* data, std::size_t n) {
+  if (n > left_)
+    throw std::invalid_argument(cat("ZstdFrameWriter: ", n, " bytes given, ", left_, " left"));
+  left_ -= n;
+  ZSTD_inBuffer in{data, n, 0};
+  const ZSTD_EndDirective mode = left_ == 0 ? ZSTD_e_end : ZSTD_e_continue;
+  for (;;) {
+    const std::size_t at = out_.size();
+    out_.resize(at + ZSTD_CStreamOutSize());
+    ZSTD_outBuffer out{out_.data() + at, ZSTD_CStreamOutSize(), 0};
+    const std::size_t r = ZSTD_compressStream2(cctx_, &out, &in, mode);
+    if (ZSTD_isError(r)) throw Error(cat("zstd compression failed: ", ZSTD_getErrorName(r)));
+    out_.resize(at + out.pos);
+    if (mode == ZSTD_e_end ? r == 0 : in.pos == in.size) break;
+  }
+}
+
+std::vector<std::uint8_t> ZstdFrameWriter::finish() {
+  if (left_ != 0)
+    throw std::invalid_argument(cat("ZstdFrameWriter: finish() with ", left_, " bytes to come"));
+  if (out_.empty()) write(nullptr, 0);  // an empty frame
+  return std::move(out_);
+}
+
+ZstdFrameReader::ZstdFrameReader(const std::uint8_t* src, std::size_t size, std::string what)
+    : src_(src), size_(size), what_(std::move(what)) {
+  dctx_ = ZSTD_createDCtx();
+  if (!dctx_) throw std::bad_alloc();
+}
+
+ZstdFrameReader::~ZstdFrameReader() {
+  ZSTD_freeDCtx(dctx_);
+}
+
+void ZstdFrameReader::read(std::uint8_t* out_bytes, std::size_t n) {
+  ZSTD_outBuffer out{out_bytes, n, 0};
+  while (out.pos < out.size) {
+    if (ended_) throw FormatError(cat(what_, ": zstd data ends early"));
+    ZSTD_inBuffer in{src_, size_, pos_};
+    const std::size_t before_in = in.pos, before_out = out.pos;
+    const std::size_t r = ZSTD_decompressStream(dctx_, &out, &in);
+    if (ZSTD_isError(r))
+      throw FormatError(cat(what_, ": zstd data does not decode: ", ZSTD_getErrorName(r)));
+    pos_ = in.pos;
+    if (r == 0) ended_ = true;
+    if (!ended_ && in.pos == before_in && out.pos == before_out)
+      throw FormatError(cat(what_, ": zstd data is truncated"));
+  }
+}
+
+void ZstdFrameReader::finish() {
+  if (!ended_) {
+    // The frame may end exactly at the last byte read: a call with no room left says so.
+    std::uint8_t probe = 0;
+    ZSTD_outBuffer out{&probe, 1, 0};
+    ZSTD_inBuffer in{src_, size_, pos_};
+    const std::size_t r = ZSTD_decompressStream(dctx_, &out, &in);
+    if (ZSTD_isError(r))
+      throw FormatError(cat(what_, ": zstd data does not decode: ", ZSTD_getErrorName(r)));
+    pos_ = in.pos;
+    if (out.pos != 0) throw FormatError(cat(what_, ": zstd data holds more bytes than expected"));
+    if (r != 0) throw FormatError(cat(what_, ": zstd data is truncated"));
+    ended_ = true;
+  }
+  if (pos_ != size_) throw FormatError(cat(what_, ": trailing bytes after the zstd frame"));
 }
 
 void decompress_bytes(const std::uint8_t* src, std::size_t size, std::uint8_t* out,
@@ -542,7 +639,11 @@ struct Writer::Impl {
   std::vector<std::vector<std::uint32_t>> entry_labels;
   std::vector<bool> filled;
   // Level-0 slabs encoded elsewhere (provide_level0_slab), by bz, until their slab is flushed.
-  std::map<std::int64_t, std::vector<EncodedBrick>> provided;
+  struct Provided {
+    std::vector<EncodedBrick> bricks;
+    const PayloadFile* file = nullptr;  // where bricks with an empty payload have their bytes
+  };
+  std::map<std::int64_t, Provided> provided;
   bool level1_fed = false;  // append_level1_slice was used (level 0 comes only from provided)
   std::vector<std::uint8_t> zeros = std::vector<std::uint8_t>(kPayloadAlignment, 0);
   std::uint64_t pos = 0;
@@ -662,9 +763,25 @@ struct Writer::Impl {
   // Appends one brick's payload and records its index entry (`k`: its index slot).
   void store(std::uint64_t k, IndexEntry en, const std::uint8_t* payload,
              std::vector<std::uint32_t>&& labels) {
+    store_with(k, en, std::move(labels), [&] { file.write(payload, en.stored_size); });
+  }
+
+  // store() of a payload that lies in `source` at `offset` (en.stored_size bytes), copied from
+  // file to file.
+  void store_from_file(std::uint64_t k, IndexEntry en, const PayloadFile& source,
+                       std::uint64_t offset, std::vector<std::uint32_t>&& labels) {
+    store_with(k, en, std::move(labels),
+               [&] { file.append_from(source.fd, offset, en.stored_size, source.name); });
+  }
+
+  // Records brick k's index entry, its payload (en.stored_size bytes, appended by
+  // `write_payload`, then padded to the payload alignment) at the current position.
+  template <class WritePayload>
+  void store_with(std::uint64_t k, IndexEntry en, std::vector<std::uint32_t>&& labels,
+                  WritePayload write_payload) {
     if (en.stored_size) {
       en.offset = pos;
-      file.write(payload, en.stored_size);
+      write_payload();
       const std::uint64_t pad = align_up(en.stored_size, kPayloadAlignment) - en.stored_size;
       if (pad) file.write(zeros.data(), pad);
       pos += en.stored_size + pad;
@@ -729,9 +846,9 @@ struct Writer::Impl {
       if (b.error) std::rethrow_exception(b.error);  // `drain` waits for the bricks in flight
       lock.unlock();
       BrickResult& r = results[std::size_t(j)];
-      store(slot(source.level, source.bz, first + j), r.entry, r.payload.data.get(),
+      store(slot(source.level, source.bz, first + j), r.entry, r.payload.data(),
             std::move(r.labels));
-      r.payload.clear();
+      std::vector<std::uint8_t>().swap(r.payload);
       lock.lock();
     }
   }
@@ -807,8 +924,9 @@ struct Writer::Impl {
       auto given = provided.find(bz);
       if (given != provided.end()) {
         // Encoded elsewhere (a shard of a sharded pack): stored as handed over, not re-encoded.
+        const PayloadFile* file = given->second.file;
         for (std::int64_t i = 0; i < items; ++i) {
-          EncodedBrick& eb = given->second[std::size_t(i)];
+          EncodedBrick& eb = given->second.bricks[std::size_t(i)];
           IndexEntry en{};
           en.bx = std::uint32_t((i % per_channel) % gx);
           en.by = std::uint32_t((i % per_channel) / gx);
@@ -819,8 +937,13 @@ struct Writer::Impl {
           std::memcpy(en.min, eb.min.data(), 8);
           std::memcpy(en.max, eb.max.data(), 8);
           en.checksum = eb.checksum;
-          en.stored_size = eb.payload.size();
-          store(slot(0, bz, i), en, eb.payload.data(), std::move(eb.labels));
+          if (file && eb.payload.empty() && eb.file_bytes > 0) {
+            en.stored_size = eb.file_bytes;
+            store_from_file(slot(0, bz, i), en, *file, eb.file_offset, std::move(eb.labels));
+          } else {
+            en.stored_size = eb.payload.size();
+            store(slot(0, bz, i), en, eb.payload.data(), std::move(eb.labels));
+          }
           std::vector<std::uint8_t>().swap(eb.payload);
         }
         provided.erase(given);
@@ -833,7 +956,7 @@ struct Writer::Impl {
       }
       std::vector<ChannelBlock> blocks;
       for (const auto& s : lv.slab)
-        blocks.push_back({s.data(), 0, dy});
+        blocks.push_back({s.data(), 0, dy, &s});
       encode_and_write(source, std::move(blocks), 0, items);
       return;
     }
@@ -899,7 +1022,7 @@ struct Writer::Impl {
         const std::uint8_t* src =
             L == 0 ? lv.slab[c].data() + std::size_t(z0) * plane * bytes : lv.pair[c].data();
         downsample_slice(stored[c].type, src, z % 2 == 1 ? 2 : 1, lv.dims[0], lv.dims[1],
-                         lv.next_slice[c].data(), threads);
+                         lv.next_slice[c].data(), threads, L == 0 ? &lv.slab[c] : nullptr);
         next[c] = lv.next_slice[c].data();
       }
       push(L + 1, next);
@@ -1083,7 +1206,8 @@ void Writer::append_level1_slice(const std::vector<const void*>& channel_slices)
   m.push_level1(in);
 }
 
-void Writer::provide_level0_slab(std::int64_t bz, std::vector<EncodedBrick> bricks) {
+void Writer::provide_level0_slab(std::int64_t bz, std::vector<EncodedBrick> bricks,
+                                 const PayloadFile* file) {
   Impl& m = *impl_;
   const std::int64_t e = m.opt.brick_edge;
   if (bz < 0 || bz >= level0_slab_count(m.opt)) {
@@ -1101,7 +1225,7 @@ void Writer::provide_level0_slab(std::int64_t bz, std::vector<EncodedBrick> bric
     throw std::invalid_argument(cat(m.path, ": provide_level0_slab: slab ", bz, " has ",
                                     bricks.size(), " bricks, expected ", items));
   }
-  m.provided.emplace(bz, std::move(bricks));
+  m.provided.emplace(bz, Impl::Provided{std::move(bricks), file});
 }
 
 void Writer::finish() {

@@ -1,5 +1,6 @@
 // Tests of vispack_common: atomic files, NRRD round trips and errors, command lines, slice ranges,
 // parallel_for, exit codes and hashes.
+#include <fcntl.h>
 #include <gtest/gtest.h>
 #include <sys/resource.h>
 #include <unistd.h>
@@ -95,6 +96,45 @@ TEST(AtomicFile, FileSizeLimitIsIoErrorNotPartialFile) {
   EXPECT_TRUE(threw);
   EXPECT_FALSE(fs::exists(dir / "big.bin"));
   EXPECT_EQ(count_files(dir.path()), 0u);
+}
+
+// append_from copies a byte range of another open file onto the end, file to file
+// (copy_file_range) or through a buffer (copy_range false, the way for file systems that refuse
+// the first): the same bytes both ways, appended after what was written before, the append
+// position moved; a source shorter than the range is an IoError naming it, and nothing is
+// published.
+TEST(AtomicFile, AppendFromCopiesARangeOfAnotherFileBothWays) {
+  TempDir dir;
+  std::string source(3 * 1024 * 1024 + 77, '\0');  // over the buffer of the second way
+  for (std::size_t i = 0; i < source.size(); ++i)
+    source[i] = char(i * 2654435761u >> 24);
+  write_file_atomic(dir / "source.bin", source);
+  const int fd = ::open((dir / "source.bin").c_str(), O_RDONLY);
+  ASSERT_GE(fd, 0);
+  for (bool copy_range : {true, false}) {
+    const std::string name = copy_range ? "range.bin" : "buffer.bin";
+    AtomicFile file(dir / name);
+    file.write("head");
+    file.append_from(fd, 5, source.size() - 9, "source.bin", copy_range);
+    file.append_from(fd, 0, 0, "source.bin", copy_range);  // nothing
+    file.append_from(fd, 1, 2, "source.bin", copy_range);
+    file.write("!");
+    EXPECT_EQ(file.size(), 4 + source.size() - 9 + 2 + 1);
+    file.commit();
+    EXPECT_EQ(read_file(dir / name),
+              "head" + source.substr(5, source.size() - 9) + source.substr(1, 2) + "!")
+        << (copy_range ? "copy_file_range" : "pread and write");
+    AtomicFile shorter(dir / ("short-" + name));
+    try {
+      shorter.append_from(fd, source.size() - 10, 11, "source.bin", copy_range);
+      ADD_FAILURE() << "a range past the end of the source was copied";
+    } catch (const IoError& e) {
+      EXPECT_NE(std::string(e.what()).find("source.bin: ends at byte"), std::string::npos)
+          << e.what();
+    }
+  }
+  ::close(fd);
+  EXPECT_FALSE(fs::exists(dir / "short-range.bin"));
 }
 
 TEST(ReadFile, RefusesOverLimitAndMissing) {

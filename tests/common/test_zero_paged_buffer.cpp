@@ -2,28 +2,20 @@
 // zeros, and pages that only ever got zeros cost no memory.
 #include <gtest/gtest.h>
 
-#include <sys/mman.h>
-
 #include <cstring>
 #include <random>
 #include <vector>
 
+#include "test_support.h"
 #include "vispack/common/zero_paged_buffer.h"
 
 using vispack::ZeroPagedBuffer;
 
 namespace {
 
-// How many of the buffer's pages are resident (mincore): untouched anonymous pages are not.
+// How many of the buffer's pages are resident: untouched anonymous pages are not.
 std::size_t resident_pages(const ZeroPagedBuffer& b) {
-  const std::size_t page = ZeroPagedBuffer::page_size();
-  const std::size_t pages = (b.size() + page - 1) / page;
-  std::vector<unsigned char> in(pages);
-  EXPECT_EQ(::mincore(const_cast<std::uint8_t*>(b.data()), pages * page, in.data()), 0);
-  std::size_t n = 0;
-  for (unsigned char c : in)
-    n += c & 1;
-  return n;
+  return vispack::test::resident_pages(b.data(), b.size());
 }
 
 }  // namespace

@@ -126,6 +126,18 @@ inline WriterOptions options_for(const Volume& v, int edge, int threads = 2) {
   return o;
 }
 
+// Appends a slab's level-1 slices to a Writer fed as a merge feeds it: `level1` as
+// encode_level0_slab gives them (per stored channel, `n1` slices one after the other).
+inline void append_level1_slices(Writer& w, const std::vector<std::vector<std::uint8_t>>& level1,
+                                 std::size_t n1) {
+  for (std::size_t k = 0; k < n1; ++k) {
+    std::vector<const void*> slice;
+    for (const auto& l : level1)
+      slice.push_back(l.data() + l.size() / n1 * k);
+    w.append_level1_slice(slice);
+  }
+}
+
 inline void write(const std::string& path, const Volume& v, const WriterOptions& o) {
   std::vector<const void*> ptrs;
   for (const auto& d : v.data)

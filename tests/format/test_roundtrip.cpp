@@ -328,12 +328,7 @@ TEST(Writer, Level1SlicesWithProvidedLevel0GiveTheSameBytes) {
         w.provide_level0_slab(bz, encode_level0_slab(o, bz, slab, &level1));
         const std::size_t n1 =
             level1[0].empty() ? 0 : std::size_t((std::min(e, sh.dims[2] - bz * e) + 1) / 2);
-        for (std::size_t k = 0; k < n1; ++k) {
-          std::vector<const void*> slice;
-          for (const auto& l : level1)
-            slice.push_back(l.data() + l.size() / n1 * k);
-          w.append_level1_slice(slice);
-        }
+        append_level1_slices(w, level1, n1);
       }
       w.finish();
       EXPECT_EQ(w.slices_written(), sh.dims[2]);

@@ -1,18 +1,22 @@
 #include "test_support.h"
 
+#include <sys/mman.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <array>
+#include <cerrno>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <iterator>
 #include <stdexcept>
+#include <vector>
 
 namespace vispack::test {
 namespace {
@@ -118,6 +122,18 @@ double max_displacement_px(const SimilarityPx& a, const SimilarityPx& b, int ct_
     worst = std::max(worst, std::hypot(ax - bx, ay - by));
   }
   return worst;
+}
+
+std::size_t resident_pages(const void* data, std::size_t size) {
+  const std::size_t page = std::size_t(::sysconf(_SC_PAGESIZE));
+  const std::size_t pages = (size + page - 1) / page;
+  std::vector<unsigned char> in(pages);
+  if (::mincore(const_cast<void*>(data), pages * page, in.data()) != 0)
+    throw std::runtime_error(std::string("mincore failed: ") + std::strerror(errno));
+  std::size_t n = 0;
+  for (unsigned char c : in)
+    n += c & 1;
+  return n;
 }
 
 }  // namespace vispack::test

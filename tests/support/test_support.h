@@ -4,8 +4,10 @@
 //  - bin / source_dir: where the built executables and the source tree are.
 //  - max_displacement_px: transform error as the largest displacement over an image's four
 //    corners and its centre, so a rotation error shows as much as a shift error.
+//  - resident_pages: how many pages of a mapping are in memory (mincore).
 #pragma once
 
+#include <cstddef>
 #include <string>
 
 namespace vispack::test {
@@ -60,5 +62,10 @@ struct SimilarityPx {
 // the CT image (ct_width x ct_height)}.
 double max_displacement_px(const SimilarityPx& a, const SimilarityPx& b, int ct_width,
                            int ct_height, int width, int height);
+
+// How many of the pages that [data, data + size) touches are resident (mincore): untouched
+// anonymous pages are not. `data` must be page-aligned (a mapping's start). Throws
+// std::runtime_error when mincore fails.
+std::size_t resident_pages(const void* data, std::size_t size);
 
 }  // namespace vispack::test

@@ -26,6 +26,13 @@ class AtomicFile {
   // Appends bytes. Throws IoError (disk full, file too large) naming the destination.
   void write(const void* data, std::size_t size);
   void write(std::string_view text) { write(text.data(), text.size()); }
+  // Appends `size` bytes at `offset` of the open file `fd` (`source` names it in errors):
+  // copy_file_range, so the bytes go from file to file inside the kernel, else (file systems or
+  // kernels that refuse it) pread and write through a 1 MiB buffer; `copy_range` false takes the
+  // second way from the start. Throws IoError naming `source` when it ends before offset + size,
+  // or the destination on a write failure.
+  void append_from(int fd, std::uint64_t offset, std::uint64_t size, const std::string& source,
+                   bool copy_range = true);
   // Writes at an absolute offset (for patching a header); does not move the append position.
   void pwrite(const void* data, std::size_t size, std::uint64_t offset);
   // Bytes appended so far.

@@ -6,7 +6,10 @@
 // of a 2048x1216 slice of the real-size stack, whose slab (~1.1 GB) was otherwise all faulted in
 // on its first fill, and on a machine whose fresh pages are dear (a VM returning free memory to
 // its host: docs/BENCHMARKS.md "Fresh memory") that cost about what zstd takes to compress the
-// whole slab. Reading is plain memory access (untouched pages read as zero).
+// whole slab. Reading is plain memory access (untouched pages read as zero), but a read faults an
+// untouched page in too (and on a kernel without a shared zero page, pvm_no_zero_page, allocates
+// and clears it): readers that can skip zeros ask known_zero() first (the format's brick gather
+// and 2x2x2 reduction do).
 // Ownership: RAII (munmap). Thread-safety: write() and write_narrowed() may run at once on ranges
 // that share no page (page_size() granularity, offsets from data()); reads of data() must not
 // overlap a write.
@@ -33,6 +36,11 @@ class ZeroPagedBuffer {
   const std::uint8_t* data() const { return data_; }
   std::size_t size() const { return size_; }
   static std::size_t page_size();
+  // True when every page that [p, p + n) touches is known to hold only zeros (never written, or
+  // last written with zeros): such bytes read as zero without being touched. False for n == 0 or a
+  // range outside this buffer. Thread-safety: may run beside write() on pages it does not ask
+  // about.
+  bool known_zero(const std::uint8_t* p, std::size_t n) const;
 
   // data()[at, at + n) = src[0, n). A page wholly inside the range whose new bytes are all zero
   // is left untouched when it is known to be zero; the range's partly covered pages are copied.

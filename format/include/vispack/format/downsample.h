@@ -11,6 +11,10 @@
 
 #include "vispack/format/types.h"
 
+namespace vispack {
+class ZeroPagedBuffer;
+}
+
 namespace vispack::format {
 
 // Mean of `count` (1..8) int16 values, rounded half up: floor((2 * sum + n) / (2 * n)).
@@ -36,8 +40,12 @@ std::uint16_t reduce_majority(const std::uint16_t* ids, std::size_t count);
 // `dst` receives ceil(dx / 2) x ceil(dy / 2) voxels, each reduced from its (up to 8) children
 // with the rule of its type (rgba8: alpha-weighted mean, int16: mean, labels: majority).
 // Rows are split over `threads` threads (parallel_for) on large slices; the result does not
-// depend on `threads`.
+// depend on `threads`. With `zeros` (the buffer `src` lies in), runs of output voxels whose
+// children all lie in pages it knows to be zero are written as zeros without reading those pages
+// (the reduction of zeros is zero under every rule), so they are never faulted in; the result is
+// the same.
 void downsample_slice(ChannelType type, const std::uint8_t* src, int src_slices, std::int64_t dx,
-                      std::int64_t dy, std::uint8_t* dst, int threads);
+                      std::int64_t dy, std::uint8_t* dst, int threads,
+                      const ZeroPagedBuffer* zeros = nullptr);
 
 }  // namespace vispack::format

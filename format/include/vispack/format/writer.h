@@ -35,6 +35,7 @@
 
 #include <array>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -42,6 +43,13 @@
 #include <nlohmann/json.hpp>
 
 #include "vispack/format/types.h"
+
+typedef struct ZSTD_CCtx_s ZSTD_CCtx;
+typedef struct ZSTD_DCtx_s ZSTD_DCtx;
+
+namespace vispack {
+class ZeroPagedBuffer;
+}
 
 namespace vispack::format {
 
@@ -77,8 +85,22 @@ struct EncodedBrick {
   std::array<std::uint8_t, 8> min{};  // the index entry's min / max bytes (SPEC.md "Brick index")
   std::array<std::uint8_t, 8> max{};
   std::uint64_t checksum = 0;         // xxh64(payload); 0 for a uniform brick
-  std::vector<std::uint8_t> payload;  // stored bytes; empty for a uniform brick
+  std::vector<std::uint8_t> payload;  // stored bytes; empty for a uniform brick, or when in a file
   std::vector<std::uint32_t> labels;  // label channels: the brick's ID set, ascending; else empty
+  // Or the stored bytes lie in a file (Writer::provide_level0_slab with a PayloadFile, `payload`
+  // empty): `file_bytes` bytes at `file_offset` of it; 0 bytes for a uniform brick.
+  std::uint64_t file_offset = 0;
+  std::uint64_t file_bytes = 0;
+};
+
+// An open file that provided bricks' stored bytes are copied from (EncodedBrick::file_offset):
+// the Writer copies them into its output (copy_file_range, else read and write) when it writes
+// their slab, and never holds them in memory. Owned by the caller, who keeps `fd` open and the
+// bytes unchanged until then (the slab's last level-1 slice appended, or finish()); `name` names
+// it in errors.
+struct PayloadFile {
+  int fd = -1;
+  std::string name;
 };
 
 // The stored channel list `options` give (label channels narrowed as the Writer narrows them).
@@ -108,6 +130,21 @@ std::vector<EncodedBrick> encode_level0_slab(
     std::vector<std::vector<std::uint8_t>>* level1 = nullptr,
     SlabLabels labels = SlabLabels::kUint16);
 
+// Receives the level-1 slices of a slab one at a time: slice `k` of stored channel `channel`,
+// `bytes` bytes (ceil(dims[0] / 2) x ceil(dims[1] / 2) voxels of the stored type), every slice of
+// channel 0 in order, then channel 1's, ... The bytes are valid during the call only.
+using Level1SliceSink =
+    std::function<void(std::size_t channel, int k, const std::uint8_t* slice, std::size_t bytes)>;
+
+// encode_level0_slab with the level-1 slices handed to `level1` (when set and the volume has a
+// level 1) as they are reduced, none held, and with `zero_pages`: per channel, the buffer its
+// slab lies in (ZeroPagedBuffer) or null; bytes in pages it knows to be zero are taken as zeros
+// without being read, so those pages are never faulted in (the same bytes result).
+std::vector<EncodedBrick> encode_level0_slab(const WriterOptions& options, std::int64_t bz,
+                                             const std::vector<const void*>& channel_slabs,
+                                             const Level1SliceSink& level1, SlabLabels labels,
+                                             const std::vector<const ZeroPagedBuffer*>& zero_pages);
+
 // Decodes `brick` into brick_edge^3 voxels of `stored` type at `out` (brick_edge^3 *
 // channel_type_bytes(stored) bytes): the merge of a sharded pack rebuilds level 0 from it to
 // compute the coarser levels. Throws FormatError naming `what` when the payload does not match
@@ -121,6 +158,49 @@ void decode_encoded_brick(const EncodedBrick& brick, ChannelType stored, int bri
 std::vector<std::uint8_t> compress_bytes(const void* data, std::size_t size, int level);
 void decompress_bytes(const std::uint8_t* src, std::size_t size, std::uint8_t* out,
                       std::size_t out_size, const std::string& what);
+
+// compress_bytes fed piece by piece: one zstd frame of exactly `size` bytes (its header records
+// the size) at `level`, none of its input held; decompress_bytes and ZstdFrameReader read it.
+// Not necessarily the bytes compress_bytes gives for the same input. Thread-safety: one thread.
+class ZstdFrameWriter {
+ public:
+  ZstdFrameWriter(std::uint64_t size, int level);
+  ~ZstdFrameWriter();
+  ZstdFrameWriter(const ZstdFrameWriter&) = delete;
+  ZstdFrameWriter& operator=(const ZstdFrameWriter&) = delete;
+  // The next n bytes of the frame's content. Throws std::invalid_argument past `size`, Error when
+  // zstd fails.
+  void write(const void* data, std::size_t n);
+  // The frame, once every byte was written (std::invalid_argument before).
+  std::vector<std::uint8_t> finish();
+
+ private:
+  ZSTD_CCtx* cctx_ = nullptr;
+  std::uint64_t left_ = 0;
+  std::vector<std::uint8_t> out_;
+};
+
+// Decodes one zstd frame `src[0, size)` piece by piece into the caller's buffers (none of the
+// decoded content held). Throws FormatError naming `what` when the frame does not decode, ends
+// early, or (finish()) holds more bytes or trailing data. Thread-safety: one thread.
+class ZstdFrameReader {
+ public:
+  ZstdFrameReader(const std::uint8_t* src, std::size_t size, std::string what);
+  ~ZstdFrameReader();
+  ZstdFrameReader(const ZstdFrameReader&) = delete;
+  ZstdFrameReader& operator=(const ZstdFrameReader&) = delete;
+  // The next n decoded bytes into out.
+  void read(std::uint8_t* out, std::size_t n);
+  // Checks that the frame ended exactly here.
+  void finish();
+
+ private:
+  ZSTD_DCtx* dctx_ = nullptr;
+  const std::uint8_t* src_;
+  std::size_t size_, pos_ = 0;
+  std::string what_;
+  bool ended_ = false;
+};
 
 class Writer {
  public:
@@ -148,8 +228,12 @@ class Writer {
   // and must be the slices the bricks were encoded from, or the file is inconsistent. A volume
   // of a single level (it fits one brick) has no level 1: provide its one slab, then finish().
   // Throws std::invalid_argument (bz out of range, slab already flushed or provided, wrong brick
-  // count).
-  void provide_level0_slab(std::int64_t bz, std::vector<EncodedBrick> bricks);
+  // count). With `file`, bricks whose `payload` is empty take their stored bytes from it
+  // (EncodedBrick::file_offset / file_bytes; PayloadFile says how long it must stay open): a
+  // merge copies level 0 from its shards' files without reading it into memory. Copying throws
+  // IoError naming the file when it is shorter than a brick's range.
+  void provide_level0_slab(std::int64_t bz, std::vector<EncodedBrick> bricks,
+                           const PayloadFile* file = nullptr);
 
   // For a merge that has level 0 only as encoded bricks: appends the next slice of level 1 (the
   // 2x2x2 reduction of level-0 slices 2k and 2k + 1, or of the last slice alone when dims[2] is
