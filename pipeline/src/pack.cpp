@@ -328,6 +328,13 @@ struct SlabBuffers {
     if (plan.has_labels) out.push_back(labels.data());
     return out;
   }
+  // The buffers behind channels(), which know their zero pages (format::encode_level0_slab).
+  std::vector<const ZeroPagedBuffer*> zero_pages(const PackPlan& plan) const {
+    std::vector<const ZeroPagedBuffer*> out = {&rgba};
+    if (plan.has_ct) out.push_back(&ct);
+    if (plan.has_labels) out.push_back(&labels);
+    return out;
+  }
 };
 
 // Reads stack slice k's intermediates into slice `z` of `out`, converted to the output grid;
@@ -425,10 +432,12 @@ constexpr int kSlabVersion = 2;
 constexpr int kSlabLevel1Zstd = 1;  // zstd level of the level-1 slices
 
 // What a slab file holds: the slab's level-0 bricks (index order) and, per stored channel, its
-// level-1 slices (format::encode_level0_slab; empty for a single-level volume).
+// level-1 slices (format::encode_level0_slab) as one zstd frame with their raw size (none for a
+// single-level volume).
 struct SlabContent {
   std::vector<format::EncodedBrick> bricks;
-  std::vector<std::vector<std::uint8_t>> level1;
+  std::vector<std::vector<std::uint8_t>> level1;  // compressed
+  std::vector<std::uint64_t> level1_raw;
 };
 
 // The stack slices [first, last) of level-0 slab bz.
@@ -523,11 +532,10 @@ void write_slab_file(const std::string& path, const std::string& header, const S
     }
     if (small.size() >= (std::size_t(1) << 20)) emit_small();
   }
-  for (const auto& l : slab.level1) {
-    const std::vector<std::uint8_t> z = format::compress_bytes(l.data(), l.size(), kSlabLevel1Zstd);
-    put(small, std::uint64_t(l.size()));
-    put(small, std::uint64_t(z.size()));
-    emit(z.data(), z.size());
+  for (std::size_t c = 0; c < slab.level1.size(); ++c) {
+    put(small, std::uint64_t(slab.level1_raw[c]));
+    put(small, std::uint64_t(slab.level1[c].size()));
+    emit(slab.level1[c].data(), slab.level1[c].size());
   }
   emit_small();
   const std::uint64_t checksum = sum.digest();
@@ -535,125 +543,156 @@ void write_slab_file(const std::string& path, const std::string& header, const S
   file.commit();
 }
 
-// Reads and checks a slab file against what the merge expects (`header` = the JSON it would
-// write, input fingerprint aside; `level1_bytes`: the size of each channel's level-1 slices).
-// Throws FormatError / InputError naming the file.
-SlabContent read_slab_file(const std::string& path, const std::string& expected_header,
-                           const std::string& expected_input, std::pair<int, int> slices,
-                           const std::vector<std::size_t>& level1_bytes) {
-  // Read twice from the page cache, never whole into memory: once to check the trailing
-  // checksum, then record by record straight into the bricks' payloads (a 64-slice slab of
-  // 2048x1216 slices is ~120 MB; a copy of the whole file cost the merge, which is serial, that
-  // much again in fresh pages).
-  auto bad = [&](const std::string& what) { return FormatError(cat(path, ": ", what)); };
-  std::unique_ptr<std::FILE, int (*)(std::FILE*)> file(std::fopen(path.c_str(), "rb"),
-                                                       &std::fclose);
-  if (!file) throw IoError(cat(path, ": cannot open: ", std::strerror(errno)));
-  std::error_code ec;
-  const std::uint64_t file_size = fs::file_size(path, ec);
-  if (ec) throw IoError(cat(path, ": cannot read its size: ", ec.message()));
-  auto read_exactly = [&](void* dst, std::size_t n) {
-    if (n > 0 && std::fread(dst, 1, n, file.get()) != n) {
-      if (std::ferror(file.get())) throw IoError(cat(path, ": read failed"));
+// A slab file opened for the merge, checked against what the merge expects (`expected_header` =
+// the JSON it would write, input fingerprint aside; `level1_bytes`: the size of each channel's
+// level-1 slices; `slices`: the slab's stack slices, for messages). Nothing of it is held whole:
+// its trailing checksum is checked reading it once through a small buffer, its bricks' stored
+// bytes stay in the file (take_bricks() gives their offsets; the format Writer copies them from
+// payload_file() into the packed file, file to file), and its level-1 slices are decoded one
+// slice at a time (read_level1). A 64-slice slab of 2048x1216 slices is ~130 MB, which a merge
+// that read it into memory paid for in fresh pages (and zeroing) before copying it out again.
+// Owns the open file (RAII); payload_file() is valid while this object lives. Throws
+// FormatError / InputError / IoError naming the file.
+class SlabFile {
+ public:
+  SlabFile(const std::string& path, const std::string& expected_header,
+           const std::string& expected_input, std::pair<int, int> slices,
+           const std::vector<std::size_t>& level1_bytes)
+      : path_(path), file_(std::fopen(path.c_str(), "rb"), &std::fclose) {
+    if (!file_) throw IoError(cat(path, ": cannot open: ", std::strerror(errno)));
+    std::error_code ec;
+    const std::uint64_t file_size = fs::file_size(path, ec);
+    if (ec) throw IoError(cat(path, ": cannot read its size: ", ec.message()));
+    {
+      char magic[8] = {};
+      if (file_size < 8 + 4 + 8) throw bad("not a vispack slab file (bad magic or truncated)");
+      read_exactly(magic, 8);
+      if (std::memcmp(magic, kSlabMagic, 8) != 0)
+        throw bad("not a vispack slab file (bad magic or truncated)");
+      Xxh64Stream hash;
+      hash.update(magic, 8);
+      std::vector<char> buffer(std::size_t(1) << 20);
+      for (std::uint64_t left = file_size - 16; left > 0;) {
+        const std::size_t n = std::size_t(std::min<std::uint64_t>(left, buffer.size()));
+        read_exactly(buffer.data(), n);
+        hash.update(buffer.data(), n);
+        left -= n;
+      }
+      std::uint64_t sum = 0;
+      read_exactly(&sum, 8);
+      if (hash.digest() != sum) throw bad("checksum mismatch (corrupt or truncated)");
+      if (std::fseek(file_.get(), 8, SEEK_SET) != 0) throw IoError(cat(path, ": seek failed"));
+    }
+    pos_ = 8;
+    end_ = file_size - 8;
+    std::uint32_t header_size = 0;
+    take(&header_size, 4);
+    if (header_size > end_ - pos_) throw bad("truncated header");
+    std::string header_text(header_size, '\0');
+    take(header_text.data(), header_size);
+    json header = json::parse(header_text, nullptr, false);
+    if (!header.is_object() || !header.contains("input")) throw bad("bad header");
+    if (header.value("version", 0) != kSlabVersion) {
+      throw InputError(cat(path, ": slab file version ", header.value("version", 0),
+                           " (an older vispack-pack, without level-1 slices); this merge reads "
+                           "version ",
+                           kSlabVersion, ": rerun vispack-pack --slices ", slices.first, ":",
+                           slices.second));
+    }
+    const std::string input = header["input"].is_string() ? header["input"].get<std::string>() : "";
+    json expected = json::parse(expected_header);
+    header["input"] = expected["input"];
+    if (header != expected) {
+      throw InputError(cat(path,
+                           ": written with other pack options or another stack shape; rerun "
+                           "vispack-pack --slices ",
+                           slices.first, ":", slices.second));
+    }
+    if (input != expected_input) {
+      throw InputError(cat(path, ": out of date: slices ", slices.first, ":", slices.second,
+                           " changed since it was written; rerun vispack-pack --slices ",
+                           slices.first, ":", slices.second));
+    }
+    const std::size_t count = expected["bricks"].get<std::size_t>();
+    bricks_.resize(count);
+    for (auto& b : bricks_) {
+      std::uint8_t rec[kSlabRecordSize];
+      take(rec, kSlabRecordSize);
+      if (rec[0] > 2) throw bad(cat("unknown codec ", int(rec[0])));
+      b.codec = format::Codec(rec[0]);
+      std::memcpy(b.min.data(), rec + 8, 8);
+      std::memcpy(b.max.data(), rec + 16, 8);
+      std::uint64_t size = 0;
+      std::uint32_t labels = 0;
+      std::memcpy(&b.checksum, rec + 24, 8);
+      std::memcpy(&size, rec + 32, 8);
+      std::memcpy(&labels, rec + 40, 4);
+      if (std::uint64_t(labels) * 4 > end_ - pos_) throw bad("truncated label set");
+      b.labels.resize(labels);
+      take(b.labels.data(), std::size_t(labels) * 4);
+      if (size > end_ - pos_) throw bad("truncated payload");
+      // Left in the file: where it is.
+      b.file_offset = pos_;
+      b.file_bytes = size;
+      skip(size);
+    }
+    for (std::size_t c = 0; c < level1_bytes.size(); ++c) {
+      std::uint64_t raw = 0, size = 0;
+      take(&raw, 8);
+      take(&size, 8);
+      if (raw != level1_bytes[c])
+        throw bad(
+            cat("level-1 slices of channel ", c, ": ", raw, " bytes, expected ", level1_bytes[c]));
+      if (size > end_ - pos_) throw bad("truncated level-1 slices");
+      frames_.emplace_back(new std::uint8_t[std::size_t(size)]);
+      take(frames_.back().get(), size);
+      readers_.push_back(std::make_unique<format::ZstdFrameReader>(
+          frames_.back().get(), std::size_t(size), cat(path, ": level-1 slices of channel ", c)));
+    }
+    if (pos_ != end_) throw bad("trailing bytes after the level-1 slices");
+    payload_file_.fd = fileno(file_.get());
+    payload_file_.name = path;
+  }
+
+  // The bricks (index order within the slab), their stored bytes at file_offset in
+  // payload_file(); once.
+  std::vector<format::EncodedBrick> take_bricks() { return std::move(bricks_); }
+  const format::PayloadFile& payload_file() const { return payload_file_; }
+  // The next `n` bytes of channel c's level-1 slices into out.
+  void read_level1(std::size_t c, std::uint8_t* out, std::size_t n) { readers_[c]->read(out, n); }
+  // Checks that every channel's level-1 frame ended exactly after what was read.
+  void finish_level1() {
+    for (auto& r : readers_)
+      r->finish();
+  }
+
+ private:
+  FormatError bad(const std::string& what) const { return FormatError(cat(path_, ": ", what)); }
+  void read_exactly(void* dst, std::size_t n) {
+    if (n > 0 && std::fread(dst, 1, n, file_.get()) != n) {
+      if (std::ferror(file_.get())) throw IoError(cat(path_, ": read failed"));
       throw bad("truncated (the file shrank while being read)");
     }
-  };
-  {
-    char magic[8] = {};
-    if (file_size < 8 + 4 + 8) throw bad("not a vispack slab file (bad magic or truncated)");
-    read_exactly(magic, 8);
-    if (std::memcmp(magic, kSlabMagic, 8) != 0)
-      throw bad("not a vispack slab file (bad magic or truncated)");
-    Xxh64Stream hash;
-    hash.update(magic, 8);
-    std::vector<char> buffer(std::size_t(1) << 20);
-    for (std::uint64_t left = file_size - 16; left > 0;) {
-      const std::size_t n = std::size_t(std::min<std::uint64_t>(left, buffer.size()));
-      read_exactly(buffer.data(), n);
-      hash.update(buffer.data(), n);
-      left -= n;
-    }
-    std::uint64_t sum = 0;
-    read_exactly(&sum, 8);
-    if (hash.digest() != sum) throw bad("checksum mismatch (corrupt or truncated)");
-    if (std::fseek(file.get(), 8, SEEK_SET) != 0) throw IoError(cat(path, ": seek failed"));
   }
-  std::uint64_t pos = 8;
-  const std::uint64_t end = file_size - 8;
-  auto take = [&](void* dst, std::uint64_t n) {
-    if (n > end - pos) throw bad("truncated");
+  void take(void* dst, std::uint64_t n) {
+    if (n > end_ - pos_) throw bad("truncated");
     read_exactly(dst, std::size_t(n));  // an empty label set: no bytes (its data() may be null)
-    pos += n;
-  };
-  std::uint32_t header_size = 0;
-  take(&header_size, 4);
-  if (header_size > end - pos) throw bad("truncated header");
-  std::string header_text(header_size, '\0');
-  take(header_text.data(), header_size);
-  json header = json::parse(header_text, nullptr, false);
-  if (!header.is_object() || !header.contains("input")) throw bad("bad header");
-  if (header.value("version", 0) != kSlabVersion) {
-    throw InputError(cat(path, ": slab file version ", header.value("version", 0),
-                         " (an older vispack-pack, without level-1 slices); this merge reads "
-                         "version ",
-                         kSlabVersion, ": rerun vispack-pack --slices ", slices.first, ":",
-                         slices.second));
+    pos_ += n;
   }
-  const std::string input = header["input"].is_string() ? header["input"].get<std::string>() : "";
-  json expected = json::parse(expected_header);
-  header["input"] = expected["input"];
-  if (header != expected) {
-    throw InputError(cat(path,
-                         ": written with other pack options or another stack shape; rerun "
-                         "vispack-pack --slices ",
-                         slices.first, ":", slices.second));
+  void skip(std::uint64_t n) {
+    if (n == 0) return;
+    if (std::fseek(file_.get(), long(n), SEEK_CUR) != 0) throw IoError(cat(path_, ": seek failed"));
+    pos_ += n;
   }
-  if (input != expected_input) {
-    throw InputError(cat(path, ": out of date: slices ", slices.first, ":", slices.second,
-                         " changed since it was written; rerun vispack-pack --slices ",
-                         slices.first, ":", slices.second));
-  }
-  const std::size_t count = expected["bricks"].get<std::size_t>();
-  SlabContent slab;
-  std::vector<format::EncodedBrick>& bricks = slab.bricks;
-  bricks.resize(count);
-  for (auto& b : bricks) {
-    std::uint8_t rec[kSlabRecordSize];
-    take(rec, kSlabRecordSize);
-    if (rec[0] > 2) throw bad(cat("unknown codec ", int(rec[0])));
-    b.codec = format::Codec(rec[0]);
-    std::memcpy(b.min.data(), rec + 8, 8);
-    std::memcpy(b.max.data(), rec + 16, 8);
-    std::uint64_t size = 0;
-    std::uint32_t labels = 0;
-    std::memcpy(&b.checksum, rec + 24, 8);
-    std::memcpy(&size, rec + 32, 8);
-    std::memcpy(&labels, rec + 40, 4);
-    if (std::uint64_t(labels) * 4 > end - pos) throw bad("truncated label set");
-    b.labels.resize(labels);
-    take(b.labels.data(), std::size_t(labels) * 4);
-    if (size > end - pos) throw bad("truncated payload");
-    b.payload.resize(std::size_t(size));
-    take(b.payload.data(), size);
-  }
-  for (std::size_t c = 0; c < level1_bytes.size(); ++c) {
-    std::uint64_t raw = 0, size = 0;
-    take(&raw, 8);
-    take(&size, 8);
-    if (raw != level1_bytes[c])
-      throw bad(
-          cat("level-1 slices of channel ", c, ": ", raw, " bytes, expected ", level1_bytes[c]));
-    if (size > end - pos) throw bad("truncated level-1 slices");
-    std::vector<std::uint8_t> z(static_cast<std::size_t>(size));
-    take(z.data(), size);
-    std::vector<std::uint8_t> l(level1_bytes[c]);
-    format::decompress_bytes(z.data(), z.size(), l.data(), l.size(),
-                             cat(path, ": level-1 slices of channel ", c));
-    slab.level1.push_back(std::move(l));
-  }
-  if (pos != end) throw bad("trailing bytes after the level-1 slices");
-  return slab;
-}
+
+  std::string path_;
+  std::unique_ptr<std::FILE, int (*)(std::FILE*)> file_;
+  std::uint64_t pos_ = 0, end_ = 0;
+  std::vector<format::EncodedBrick> bricks_;
+  std::vector<std::unique_ptr<std::uint8_t[]>> frames_;
+  std::vector<std::unique_ptr<format::ZstdFrameReader>> readers_;
+  format::PayloadFile payload_file_;
+};
 
 // The bricks of channel c in a slab's brick list (channel, then by, then bx).
 struct BrickSpan {
@@ -694,8 +733,22 @@ void write_slab(const Config& config, const PackPlan& plan, StageRun& run, int b
                 const SlabBuffers& buffers, const std::string& input, std::uint64_t bytes) {
   const std::string path = slab_path(config, bz);
   SlabContent slab;
-  slab.bricks = format::encode_level0_slab(plan.wo, bz, buffers.channels(plan), &slab.level1,
-                                           format::SlabLabels::kStored);
+  // The level-1 slices, compressed as they are reduced (one frame per channel, channels in
+  // order): never held raw.
+  const auto [first, last] = slab_slices(plan, bz);
+  const std::uint64_t n1 = std::uint64_t(last - first + 1) / 2;
+  std::unique_ptr<format::ZstdFrameWriter> frame;
+  auto level1 = [&](std::size_t c, int, const std::uint8_t* data, std::size_t bytes) {
+    if (c == slab.level1_raw.size()) {
+      if (frame) slab.level1.push_back(frame->finish());
+      slab.level1_raw.push_back(bytes * n1);
+      frame = std::make_unique<format::ZstdFrameWriter>(bytes * n1, kSlabLevel1Zstd);
+    }
+    frame->write(data, bytes);
+  };
+  slab.bricks = format::encode_level0_slab(plan.wo, bz, buffers.channels(plan), level1,
+                                           format::SlabLabels::kStored, buffers.zero_pages(plan));
+  if (frame) slab.level1.push_back(frame->finish());
   write_slab_file(
       path,
       slab_header_json(plan, format::stored_channels_for(plan.wo), bz, slab.bricks.size(), input),
@@ -812,6 +865,8 @@ StageResult run_pack_merge(const Config& config, const StageOptions& options) {
   const std::size_t plane1 = std::size_t((nx + 1) / 2) * std::size_t((ny + 1) / 2);
   std::set<std::uint16_t> ids_seen;
   std::uint64_t bytes = 0;
+  std::vector<std::vector<std::uint8_t>> level1_slices(stored.size());  // one slice each, reused
+  std::unique_ptr<SlabFile> single_level_slab;
   for (std::int64_t bz = 0; bz < slabs; ++bz) {
     const std::string path = slab_path(config, bz);
     const auto slices = slab_slices(plan, bz);
@@ -822,22 +877,31 @@ StageResult run_pack_merge(const Config& config, const StageOptions& options) {
     if (has_level1)
       for (const auto& c : stored)
         level1_bytes.push_back(plane1 * n1 * format::channel_type_bytes(c.type));
-    SlabContent slab = read_slab_file(
+    auto slab = std::make_unique<SlabFile>(
         path, slab_header_json(plan, stored, bz, std::size_t(gx * gy) * stored.size(), input),
         input, slices, level1_bytes);
     bytes += fs::file_size(path);
+    std::vector<format::EncodedBrick> bricks = slab->take_bricks();
     for (std::size_t c = 0; c < stored.size(); ++c)
-      for (const auto& b : bricks_of_channel(slab.bricks, c, gx * gy))
+      for (const auto& b : bricks_of_channel(bricks, c, gx * gy))
         for (std::uint32_t id : b.labels)
           if (id) ids_seen.insert(std::uint16_t(id));
-    // Level 0 as stored by the shard (never decoded); the coarser levels from its level-1 slices.
-    writer.provide_level0_slab(bz, std::move(slab.bricks));
+    // Level 0 as stored by the shard (never decoded: copied from its file when the Writer writes
+    // the slab, at the slab's last level-1 slice, or at finish() for a single-level volume); the
+    // coarser levels from its level-1 slices, decoded one slice at a time.
+    writer.provide_level0_slab(bz, std::move(bricks), &slab->payload_file());
     for (std::size_t k = 0; k < n1; ++k) {
       std::vector<const void*> slice;
-      for (std::size_t c = 0; c < stored.size(); ++c)
-        slice.push_back(slab.level1[c].data() + k * (level1_bytes[c] / n1));
+      for (std::size_t c = 0; c < stored.size(); ++c) {
+        const std::size_t n = level1_bytes[c] / n1;
+        if (level1_slices[c].size() < n) level1_slices[c].resize(n);
+        slab->read_level1(c, level1_slices[c].data(), n);
+        slice.push_back(level1_slices[c].data());
+      }
       writer.append_level1_slice(slice);
     }
+    slab->finish_level1();
+    if (!has_level1) single_level_slab = std::move(slab);  // its bytes are copied at finish()
     run.add_bytes(0);
   }
   writer.finish();
