@@ -71,6 +71,15 @@ parts=$(cd "$tmp/my dir/out" && ls -- *.slices-*.vdb 2>/dev/null | tr '\n' ' ')
   fail "OpenVDB parts: '$parts'"
 [[ ! -e "$tmp/my dir/out/volume.vdb" ]] || fail "a sharded vdb step wrote the whole file too"
 
+# The merge runs alone between two sharded steps: it gets the shards' CPUs and threads.
+grep -q '^#SBATCH --cpus-per-task=3$' "$tmp/run/03.sh" && grep -q -- '--merge --threads 3 ' "$tmp/run/03.sh" ||
+  fail "the merge job does not get the 3 shards' CPUs"
+[[ $(grep -c '^#SBATCH --cpus-per-task=1$' "$tmp/dry.out") == 3 ]] || fail "the sharded jobs take one CPU each"
+"$root/scripts/vispack-slurm" "$config" --shards 3 --cpus-per-task 2 --merge-cpus 5 --bin "$bin" --dry-run |
+  grep -A20 '03-pack-merge.sh$' >"$tmp/merge.out"
+grep -q '^#SBATCH --cpus-per-task=5$' "$tmp/merge.out" && grep -q -- '--merge --threads 5 ' "$tmp/merge.out" ||
+  fail "--merge-cpus 5 is not the merge job's CPUs and threads"
+
 # 2 shards, 3 slabs: whole slabs again, one shard of one slab and one of two (not i*S/N = 12).
 dry_chain 2 "01-register-measure.sh 02-slices.sh 03-pack-merge.sh 04-vdb.sh " 3
 parts=$(cd "$tmp/my dir/out" && ls -- *.slices-*.vdb 2>/dev/null | tr '\n' ' ')
@@ -93,6 +102,9 @@ set +e
   fail "--shards x: $(cat "$tmp/err")"
 "$root/scripts/vispack-slurm" "$tmp/none.json" --dry-run 2>"$tmp/err"
 [[ $? == 3 ]] || fail "missing config: $(cat "$tmp/err")"
+"$root/scripts/vispack-slurm" "$config" --merge-cpus 0 --dry-run 2>"$tmp/err"
+[[ $? == 2 && $(cat "$tmp/err") == "vispack-slurm: error: --merge-cpus '0' is not a positive integer" ]] ||
+  fail "--merge-cpus 0: $(cat "$tmp/err")"
 # (captured first: grep -q would close the pipe before a help text longer than one pipe write)
 help=$("$root/scripts/vispack-slurm" --help) || fail "--help exits $?"
 grep -q '^Usage: vispack-slurm CONFIG' <<<"$help" || fail "--help"
