@@ -7,7 +7,11 @@
 #      workers (--shards 1 / 2, one CPU per array task), against vispack-run --threads 1;
 #   3. the merge against a whole pack on the medium phantom (512x384x160, brick_edge 32: 5 slabs):
 #      vispack-pack (whole) vs vispack-pack --slices per slab + vispack-pack --merge, one thread.
-# Usage: tests/cluster/cluster_bench.sh BIN_DIR [SLICES]   (default 16 slices; prints results)
+# Usage: tests/cluster/cluster_bench.sh BIN_DIR [SLICES [BASE_ROOT]]   (default 16 slices)
+#          BASE_ROOT: another checkout (its scripts/vispack-slurm and build/bin): its chains run in
+#          the same rounds, interleaved, the order of the two reversed every other round (a chain
+#          run right after a two-worker chain was seen 2-4 s slower: memory the two processes
+#          freed is given back to this VM's host), each reported apart.
 #        tests/cluster/cluster_bench.sh --merge-only BIN_DIR [BASELINE_BIN_DIR]
 #          part 3 alone (no SLURM, no root); with a baseline, its runs alternate with BIN_DIR's
 #          (A B A B), each printing its merge / whole ratio.
@@ -18,8 +22,14 @@ if [[ "${1:-}" == "--merge-only" ]]; then
   merge_only=1
   shift
 fi
-bin=$(cd "${1:?usage: cluster_bench.sh BIN_DIR [SLICES]}" && pwd)
+bin=$(cd "${1:?usage: cluster_bench.sh BIN_DIR [SLICES [BASE_ROOT]]}" && pwd)
 slices=${2:-16}
+base_root=""
+if ((!merge_only)) && [[ -n "${3:-}" ]]; then
+  base_root=$(cd "$3" && pwd)
+  [[ -x $base_root/scripts/vispack-slurm && -x $base_root/build/bin/vispack-run ]] ||
+    { echo "cluster_bench: $base_root has no scripts/vispack-slurm or build/bin"; exit 2; }
+fi
 bins=("$bin")
 if ((merge_only)) && [[ -n "${2:-}" ]]; then bins+=("$(cd "$2" && pwd)"); fi
 tmp=$(mktemp -d "${TMPDIR:-/tmp}/vispack-cluster-bench-XXXXXX")
@@ -71,7 +81,14 @@ snake=$(elapsed "$t")
 echo "overhead: 8 chained empty Snakemake --slurm rules: $snake s, $(awk -v c="$snake" 'BEGIN { printf "%.2f", c / 8 }') s per job"
 
 # 2. 1 and 2 workers on the vhp phantom.
-"$bin/vispack-phantom" --out "$tmp/vhp" --preset vhp --slices "$slices" --seed 1 --quiet >/dev/null
+# VISPACK_CLUSTER_BENCH_PHANTOM: a folder vispack-phantom --preset vhp --slices SLICES --seed 1
+# already wrote (copied instead of generated again: ~2 minutes at 128 slices).
+if [[ -n ${VISPACK_CLUSTER_BENCH_PHANTOM:-} ]]; then
+  cp -a "$VISPACK_CLUSTER_BENCH_PHANTOM" "$tmp/vhp"
+  rm -rf "$tmp/vhp/work" "$tmp/vhp/out" "$tmp/vhp/slurm"
+else
+  "$bin/vispack-phantom" --out "$tmp/vhp" --preset vhp --slices "$slices" --seed 1 --quiet >/dev/null
+fi
 cp -a "$tmp/vhp" "$tmp/local"
 t=$(now)
 "$bin/vispack-run" "$tmp/local/config.json" --quiet --threads 1 >/dev/null
@@ -83,19 +100,31 @@ echo "vhp-$slices: vispack-run --threads 1: $local_s s"
 # Per step: SLURM's StartTime/EndTime of each job (1 s resolution; kept by MinJobAge).
 reps=${VISPACK_CLUSTER_BENCH_REPS:-2}
 declare -A walls=()
+versions=(new)
+[[ -n $base_root ]] && versions+=(base)
 for rep in $(seq "$reps"); do
+  order=("${versions[@]}")
+  ((rep % 2 == 0 && ${#versions[@]} == 2)) && order=(base new)
   for w in 1 2; do
+  for version in "${order[@]}"; do
+    slurm_script=$root/scripts/vispack-slurm chain_bin=$bin
+    [[ $version == base ]] && slurm_script=$base_root/scripts/vispack-slurm chain_bin=$base_root/build/bin
     rm -rf "$tmp/w$w"
+    # Every chain starts from the same page cache: emptied (the copies of earlier chains filled
+    # most of the memory, and a chain's allocations then reclaimed it as they went), then holding
+    # the phantom and its fresh copy.
+    sync
+    echo 3 >/proc/sys/vm/drop_caches
     cp -a "$tmp/vhp" "$tmp/w$w"
     # The copy's dirty pages written back now, not by the kernel's flusher during the chain (on
     # two cores it takes the core a one-worker chain leaves free, and a two-worker chain's).
     sync
     t=$(now)
-    "$root/scripts/vispack-slurm" "$tmp/w$w/config.json" --shards "$w" --bin "$bin" \
+    "$slurm_script" "$tmp/w$w/config.json" --shards "$w" --bin "$chain_bin" \
       --jobs-dir "$tmp/w$w/jobs" --wait --poll 0.5 >"$tmp/w$w.out" 2>&1 || { cat "$tmp/w$w.out"; exit 1; }
     wall=$(elapsed "$t")
-    walls[$w]+=" $wall"
-    cmp -s "$tmp/local/out/volume.vpk" "$tmp/w$w/out/volume.vpk" || { echo "w$w: packed file differs"; exit 1; }
+    walls[$version$w]+=" $wall"
+    cmp -s "$tmp/local/out/volume.vpk" "$tmp/w$w/out/volume.vpk" || { echo "$version w$w: packed file differs"; exit 1; }
     ids=$(sed -n 's/^job IDs: //p' "$tmp/w$w.out")
     steps=""
     for id in $ids; do
@@ -105,12 +134,15 @@ for rep in $(seq "$reps"); do
         cmd = "date -d " v["EndTime"] " +%s"; cmd | getline e; close(cmd)
         if (e - s > m) m = e - s; name = v["JobName"] } END { sub("vispack-", "", name); printf " %s %ds", name, m }')
     done
-    echo "vhp-$slices: rep $rep, vispack-slurm --shards $w ($(ls "$tmp/w$w/jobs/"*.sh | wc -l) jobs): $wall s (byte-identical); longest task per step:$steps"
+    echo "vhp-$slices: rep $rep, $version, vispack-slurm --shards $w ($(ls "$tmp/w$w/jobs/"*.sh | wc -l) jobs): $wall s (byte-identical); longest task per step:$steps"
+  done
   done
 done
 median() { tr ' ' '\n' | grep . | sort -g | awk '{ a[NR] = $1 } END { print (NR % 2) ? a[(NR + 1) / 2] : (a[NR / 2] + a[NR / 2 + 1]) / 2 }'; }
-wall_1=$(median <<<"${walls[1]}") wall_2=$(median <<<"${walls[2]}")
-echo "vhp-$slices: median of $reps: 1 worker $wall_1 s, 2 workers $wall_2 s; speed-up 1 -> 2 workers: $(awk -v a="$wall_1" -v b="$wall_2" 'BEGIN { printf "%.2f", a / b }')x (whole chain, SLURM's scheduling included)"
+for version in "${versions[@]}"; do
+  wall_1=$(median <<<"${walls[${version}1]}") wall_2=$(median <<<"${walls[${version}2]}")
+  echo "vhp-$slices: $version: median of $reps: 1 worker $wall_1 s, 2 workers $wall_2 s; speed-up 1 -> 2 workers: $(awk -v a="$wall_1" -v b="$wall_2" 'BEGIN { printf "%.2f", a / b }')x (whole chain, SLURM's scheduling included)"
+done
 stop_one_node_slurm
 fi
 
