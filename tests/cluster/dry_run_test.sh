@@ -95,6 +95,19 @@ parts=$(cd "$tmp/my dir/out" && ls -- *.slices-*.vdb 2>/dev/null | tr '\n' ' ')
 [[ $parts == "volume.slices-0000-0006.vdb volume.slices-0006-0012.vdb volume.slices-0012-0018.vdb volume.slices-0018-0024.vdb " ]] ||
   fail "OpenVDB parts with 4 shards: '$parts'"
 
+# The Snakefile's merge rule takes merge_threads (a Snakemake dry run prints the commands).
+if command -v snakemake >/dev/null; then
+  snake=$(cd "$tmp/local" && snakemake -s "$root/workflow/Snakefile" -n -p --forceall --cores 2 \
+    --config vispack_config="$tmp/local/config.json" shards=3 bin="$bin" threads=1 merge_threads=2 \
+    2>&1) || fail "snakemake -n: $snake"
+  grep -q -- 'vispack-pack --config .* --threads 2 --quiet --merge' <<<"$snake" ||
+    fail "Snakefile: merge_threads=2 is not the merge's --threads"
+  grep -q -- 'vispack-vdb --config .* --threads 1 --quiet' <<<"$snake" ||
+    fail "Snakefile: merge_threads changed another rule's threads"
+else
+  echo "dry_run_test: snakemake not installed: its merge_threads not checked"
+fi
+
 # Usage errors: one line, exit 2 (3 for a missing config).
 set +e
 "$root/scripts/vispack-slurm" "$config" --shards x --dry-run 2>"$tmp/err"
