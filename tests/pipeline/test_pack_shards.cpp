@@ -239,9 +239,10 @@ TEST_F(PackShards, CroppedAndKeptByteIdentical) {
 }
 
 // An odd slice count (21: the last slab short and odd, so its last level-1 slice comes from one
-// slice), at brick edges 8 (3 slabs) and 32 (one short slab): the merge, fed the shards' level-1
-// slices, equals the whole-stack pack byte for byte.
-TEST(PackShardsShapes, OddSliceCountShortLastSlabEdges8And32) {
+// slice), at brick edges 8 (3 slabs), 32 (one short slab) and 128 (the volume fits one brick: a
+// single level, whose slab the merge's Writer copies from its file only at finish()): the merge,
+// fed the shards' level-1 slices, equals the whole-stack pack byte for byte.
+TEST(PackShardsShapes, OddSliceCountShortLastSlabEdges8And32AndOneBrick) {
   test::TempDir dir("vispack-pack-shards-odd");
   phantom::PhantomOptions po;
   po.preset = "tiny";
@@ -252,7 +253,7 @@ TEST(PackShardsShapes, OddSliceCountShortLastSlabEdges8And32) {
   const std::string path = dir / "config.json";
   nlohmann::json raw = nlohmann::json::parse(read_file(path));
   raw["vdb"]["enabled"] = false;
-  for (int edge : {8, 32}) {
+  for (int edge : {8, 32, 128}) {
     raw["pack"]["brick_edge"] = edge;
     write_file_atomic(path, raw.dump(2));
     Config config = load_config(path);
