@@ -45,7 +45,7 @@ std::vector<StageResult> run_pipeline(const Config& config, const RunOptions& op
     throw UsageError(
         cat("--slices ", options.slices,
             ": a shard's pack writes slab files and the OpenVDB shards read the merged "
-            "file: run up to --to pack, then vispack-pack --merge, then --from vdb"));
+            "file: run up to --to pack, then vispack-merge, then --from vdb"));
   std::vector<StageResult> results;
   // Streaming (stream.h): mask, labels and pack in one pass, when the range holds all three.
   const int mask_at = position("mask", 0);

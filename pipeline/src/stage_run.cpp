@@ -322,14 +322,19 @@ void keep_slice_buffers() {
 }
 
 int stage_main(const std::string& program, int argc, char** argv, const std::string& description,
-               const std::function<StageResult(const Config&, const StageOptions&)>& body) {
+               const std::function<StageResult(const Config&, const StageOptions&)>& body,
+               bool sharded) {
   return run_main(program, argc, argv, [&](Args& args) {
-    args.describe("--config CONFIG [--slices A:B] [--force] [--quiet] [--threads N]", description);
+    args.describe(cat("--config CONFIG ", sharded ? "[--slices A:B] " : "",
+                      "[--force] [--quiet] [--threads N]"),
+                  description);
     auto config_path = args.option("--config", "CONFIG", "pipeline config (JSON)");
     StageOptions options;
-    options.slices =
-        args.option("--slices", "A:B", "process stack indices [A, B) only (a shard)", "");
-    options.force = args.flag("--force", "redo every slice even if up to date");
+    if (sharded)
+      options.slices =
+          args.option("--slices", "A:B", "process stack indices [A, B) only (a shard)", "");
+    options.force = args.flag(
+        "--force", sharded ? "redo every slice even if up to date" : "redo even if up to date");
     options.quiet = args.flag("--quiet", "no progress or summary output");
     auto threads =
         args.option_int("--threads", "N", "threads in all, this one included (default: all cores)");

@@ -6,7 +6,8 @@
 #   2. the vhp phantom (2048x1216, SLICES slices) through scripts/vispack-slurm with 1 and 2
 #      workers (--shards 1 / 2, one CPU per array task), against vispack-run --threads 1;
 #   3. the merge against a whole pack on the medium phantom (512x384x160, brick_edge 32: 5 slabs):
-#      vispack-pack (whole) vs vispack-pack --slices per slab + vispack-pack --merge, one thread.
+#      vispack-pack (whole) vs vispack-pack --slices per slab + vispack-merge (vispack-pack --merge
+#      for a build without it), one thread.
 # Usage: tests/cluster/cluster_bench.sh BIN_DIR [SLICES [BASE_ROOT]]   (default 16 slices)
 #          BASE_ROOT: another checkout (its scripts/vispack-slurm and build/bin): its chains run in
 #          the same rounds, interleaved, the order of the two reversed every other round (a chain
@@ -166,7 +167,11 @@ for bin in "${bins[@]}"; do
   done
   shards=$(elapsed "$t")
   t=$(now)
-  "$bin/vispack-pack" --config "$tmp/med/config.json" --merge --threads 1 --quiet
+  if [[ -x $bin/vispack-merge ]]; then
+    "$bin/vispack-merge" --config "$tmp/med/config.json" --threads 1 --quiet
+  else
+    "$bin/vispack-pack" --config "$tmp/med/config.json" --merge --threads 1 --quiet
+  fi
   merge=$(elapsed "$t")
   cmp -s "$tmp/whole.vpk" "$tmp/med/out/volume.vpk" || { echo "merge differs"; exit 1; }
   echo "$(basename "$(dirname "$bin")")/$(basename "$bin"): medium (512x384x$n, brick 32): whole pack $whole s; $(((n + 31) / 32)) slab shards $shards s; merge $merge s = $(awk -v m="$merge" -v w="$whole" 'BEGIN { printf "%.0f", 100 * m / w }') % of the whole pack (byte-identical)"

@@ -72,12 +72,12 @@ parts=$(cd "$tmp/my dir/out" && ls -- *.slices-*.vdb 2>/dev/null | tr '\n' ' ')
 [[ ! -e "$tmp/my dir/out/volume.vdb" ]] || fail "a sharded vdb step wrote the whole file too"
 
 # The merge runs alone between two sharded steps: it gets the shards' CPUs and threads.
-grep -q '^#SBATCH --cpus-per-task=3$' "$tmp/run/03.sh" && grep -q -- '--merge --threads 3 ' "$tmp/run/03.sh" ||
+grep -q '^#SBATCH --cpus-per-task=3$' "$tmp/run/03.sh" && grep -q -- '/vispack-merge --config .* --threads 3 ' "$tmp/run/03.sh" ||
   fail "the merge job does not get the 3 shards' CPUs"
 [[ $(grep -c '^#SBATCH --cpus-per-task=1$' "$tmp/dry.out") == 3 ]] || fail "the sharded jobs take one CPU each"
 "$root/scripts/vispack-slurm" "$config" --shards 3 --cpus-per-task 2 --merge-cpus 5 --bin "$bin" --dry-run |
   grep -A20 '03-pack-merge.sh$' >"$tmp/merge.out"
-grep -q '^#SBATCH --cpus-per-task=5$' "$tmp/merge.out" && grep -q -- '--merge --threads 5 ' "$tmp/merge.out" ||
+grep -q '^#SBATCH --cpus-per-task=5$' "$tmp/merge.out" && grep -q -- '/vispack-merge --config .* --threads 5 ' "$tmp/merge.out" ||
   fail "--merge-cpus 5 is not the merge job's CPUs and threads"
 
 # 2 shards, 3 slabs: whole slabs again, one shard of one slab and one of two (not i*S/N = 12).
@@ -100,7 +100,7 @@ if command -v snakemake >/dev/null; then
   snake=$(cd "$tmp/local" && snakemake -s "$root/workflow/Snakefile" -n -p --forceall --cores 2 \
     --config vispack_config="$tmp/local/config.json" shards=3 bin="$bin" threads=1 merge_threads=2 \
     2>&1) || fail "snakemake -n: $snake"
-  grep -q -- 'vispack-pack --config .* --threads 2 --quiet --merge' <<<"$snake" ||
+  grep -q -- 'vispack-merge --config .* --threads 2 --quiet' <<<"$snake" ||
     fail "Snakefile: merge_threads=2 is not the merge's --threads"
   grep -q -- 'vispack-vdb --config .* --threads 1 --quiet' <<<"$snake" ||
     fail "Snakefile: merge_threads changed another rule's threads"

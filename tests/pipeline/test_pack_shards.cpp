@@ -236,6 +236,19 @@ TEST_F(PackShards, CroppedAndKeptByteIdentical) {
   fs::remove_all(config_.work_dir + "/pack");
   const std::string message = error_of<InputError>([&] { run_pack_merge(config_, quiet()); });
   EXPECT_NE(message.find("slab_0000.vpkslab"), std::string::npos) << message;
+  // And the other way: slabs of the uncropped config, merged under the crop. The merge takes the
+  // body bounds from the first slab's header (it reads no mask), and these slabs have none.
+  shards_then_merge({"0:9", "9:24"});
+  write_file_atomic(path, raw.dump(2));
+  config_ = load_config(path);
+  fs::remove(config_.output);
+  const std::string refused = error_of<InputError>([&] { run_pack_merge(config_, quiet()); });
+  EXPECT_NE(refused.find("slab_0000.vpkslab: written without pack.crop_margin_px"),
+            std::string::npos)
+      << refused;
+  EXPECT_NE(refused.find("--slices 0:8"), std::string::npos) << refused;
+  write_file_atomic(path, original);
+  config_ = load_config(path);
 }
 
 // An odd slice count (21: the last slab short and odd, so its last level-1 slice comes from one
@@ -278,15 +291,15 @@ TEST_F(PackShards, OldSlabVersionRefused) {
   run_pack_stage(config_, shard("0:12"));
   run_pack_stage(config_, shard("12:24"));
   std::string bytes = read_file(slab(2));
-  const std::size_t at = bytes.find("\"version\":2");
+  const std::size_t at = bytes.find("\"version\":3");
   ASSERT_NE(at, std::string::npos);
-  bytes[at + 10] = '1';
+  bytes[at + 10] = '2';  // version 2: level-1 slices, no crop bounds
   const std::uint64_t sum = xxh64(bytes.data(), bytes.size() - 8);
   std::memcpy(&bytes[bytes.size() - 8], &sum, 8);
   fs::remove(slab(2));
   write_file_atomic(slab(2), bytes);
   std::string message = error_of<InputError>([&] { run_pack_merge(config_, quiet()); });
-  EXPECT_NE(message.find("slab_0002.vpkslab: slab file version 1"), std::string::npos) << message;
+  EXPECT_NE(message.find("slab_0002.vpkslab: slab file version 2"), std::string::npos) << message;
   EXPECT_NE(message.find("--slices 16:24"), std::string::npos) << message;
   EXPECT_FALSE(fs::exists(config_.output));
 }

@@ -49,6 +49,11 @@ struct PaletteEntry {
   std::array<std::uint8_t, 3> colour{0, 0, 0};
 };
 
+// The key of colour (r, g, b) in the palette's lookups: 0xRRGGBB.
+inline std::uint32_t pack_rgb(int r, int g, int b) {
+  return (std::uint32_t(r) << 16) | (std::uint32_t(g) << 8) | std::uint32_t(b);
+}
+
 // Reads palette.json. Throws FormatError naming the file and entry (bad id, duplicate id,
 // duplicate colour, colour out of 0..255), IoError if unreadable.
 std::vector<PaletteEntry> read_palette(const std::string& path);

@@ -57,7 +57,9 @@ namespace vispack::pipeline {
 // range).
 StageResult run_pack_stage(const Config& config, const StageOptions& options);
 
-// vispack-pack --merge: writes config.output from <work>/pack-slabs/ (see "Sharding" above).
+// vispack-pack --merge and vispack-merge: writes config.output from <work>/pack-slabs/ (see
+// "Sharding" above). Reads no image (a crop's body bounds come from slab 0's header), so
+// vispack-merge links no image library (src/pack_merge.cpp).
 // Throws UsageError (options.slices set), InputError (a slab file missing, foreign or out of
 // date, naming it and the shard to rerun), FormatError (a corrupt slab file), IoError.
 StageResult run_pack_merge(const Config& config, const StageOptions& options);

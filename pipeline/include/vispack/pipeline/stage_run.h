@@ -182,7 +182,9 @@ void keep_slice_buffers();
 //   vispack-<stage> --config CONFIG [--slices A:B] [--force] [--quiet] [--threads N]
 // Parses those, loads the config, runs `body` and prints the result (unless --quiet) as
 // "<stage>: N slices computed, M up to date in S s -> OUTPUT". Exit codes as run_main.
+// `sharded` false: a whole-stack tool (vispack-merge), without --slices.
 int stage_main(const std::string& program, int argc, char** argv, const std::string& description,
-               const std::function<StageResult(const Config&, const StageOptions&)>& body);
+               const std::function<StageResult(const Config&, const StageOptions&)>& body,
+               bool sharded = true);
 
 }  // namespace vispack::pipeline
