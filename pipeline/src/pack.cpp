@@ -4,11 +4,7 @@
 #include "pack_slab.h"
 
 #include <algorithm>
-#include <cerrno>
-#include <cstdio>
-#include <cstring>
 #include <filesystem>
-#include <map>
 #include <memory>
 #include <set>
 #include <stdexcept>
@@ -18,7 +14,6 @@
 
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
-#include "vispack/common/hash.h"
 #include "vispack/common/parallel.h"
 #include "vispack/common/test_pause.h"
 #include "vispack/common/zero_paged_buffer.h"
@@ -26,14 +21,12 @@
 #include "vispack/format/writer.h"
 #include "vispack/pipeline/labels.h"
 #include "vispack/pipeline/opencv_threads.h"
-#include "vispack/pipeline/register/solve.h"
 #include "vispack/pipeline/slice_io.h"
 #include "vispack/pipeline/work_layout.h"
 
 namespace vispack::pipeline {
 
 namespace fs = std::filesystem;
-using nlohmann::json;
 using namespace detail;  // pack_plan.h, pack_slab.h
 
 namespace {

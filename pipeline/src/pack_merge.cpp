@@ -189,15 +189,20 @@ BrickSpan bricks_of_channel(const std::vector<format::EncodedBrick>& bricks, std
   return {first, first + per_channel};
 }
 
+// The error for slab file `path` (of stack slices `slices`) not being there.
+InputError missing_slab(const std::string& path, std::pair<int, int> slices) {
+  return InputError(cat(path, ": missing: the pack shard holding slices ", slices.first, ":",
+                        slices.second, " has not run (vispack-pack --slices ", slices.first, ":",
+                        slices.second, ")"));
+}
+
 // The body bounds a cropped pack's shards recorded in slab file `path` (header crop_body_px),
 // read from its header alone (the merge checks the whole file later). `slices`: the slab's stack
 // slices, for messages. Throws InputError (missing, another version, no bounds recorded: names
 // the shard to rerun), FormatError (not a slab file), IoError.
 cv::Rect slab_body_bounds(const std::string& path, std::pair<int, int> slices) {
   const std::string rerun = cat("vispack-pack --slices ", slices.first, ":", slices.second);
-  if (!fs::exists(path))
-    throw InputError(cat(path, ": missing: the pack shard holding slices ", slices.first, ":",
-                         slices.second, " has not run (", rerun, ")"));
+  if (!fs::exists(path)) throw missing_slab(path, slices);
   std::unique_ptr<std::FILE, int (*)(std::FILE*)> file(std::fopen(path.c_str(), "rb"),
                                                        &std::fclose);
   if (!file) throw IoError(cat(path, ": cannot open: ", std::strerror(errno)));
@@ -245,11 +250,7 @@ StageResult run_pack_merge(const Config& config, const StageOptions& options) {
   // Every slab file must be there before anything is written.
   for (std::int64_t bz = 0; bz < slabs; ++bz) {
     const std::string path = slab_path(config, bz);
-    if (!fs::exists(path)) {
-      auto [first, last] = slab_slices(plan, bz);
-      throw InputError(cat(path, ": missing: the pack shard holding slices ", first, ":", last,
-                           " has not run (vispack-pack --slices ", first, ":", last, ")"));
-    }
+    if (!fs::exists(path)) throw missing_slab(path, slab_slices(plan, bz));
   }
   make_directories(fs::path(config.output).parent_path().string());
   format::Writer writer(config.output, plan.wo);
