@@ -180,9 +180,12 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
   int pairs_computed = 0;
   // The QC overlay's picture of each slice whose pairs this run computes, kept from that read
   // (issue 12: each colour slice decoded once per run, not again for its overlay). Bounded:
-  // larger ranges read their slices again.
-  const bool keep_small = std::int64_t(range.size()) * kOverlayEdge * kOverlayEdge * 3 <=
-                          std::int64_t(kSmallCacheBytes);
+  // larger ranges read their slices again. A sharded or records-only run also writes them with
+  // the records (the overlays may be drawn by a later run; a records-only run keeps none).
+  const bool write_pictures = run.sharded() || options.records_only;
+  const bool keep_small =
+      !options.records_only && std::int64_t(range.size()) * kOverlayEdge * kOverlayEdge * 3 <=
+                                   std::int64_t(kSmallCacheBytes);
   std::vector<cv::Mat> small(keep_small ? std::size_t(n) : 0);
   if (first_missing <= last_missing) {
     // Every slice must have the first slice's size (issue 7: a slice replaced between runs).
@@ -195,9 +198,9 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
                              ", the stack (", files[0].path, ") is ", stack_size.width, "x",
                              stack_size.height));
       bytes += slice.total() * slice.elemSize();
-      if ((keep_small || run.sharded()) && k >= range.first && k < range.last) {
+      if ((keep_small || write_pictures) && k >= range.first && k < range.last) {
         cv::Mat picture = overlay_picture(slice, kOverlayEdge);
-        if (run.sharded()) write_work_image(picture_path(config, k), picture);
+        if (write_pictures) write_work_image(picture_path(config, k), picture);
         if (keep_small) small[std::size_t(k)] = std::move(picture);
       }
       return prepare_frame(slice, reg, anchor_scale);
@@ -217,7 +220,7 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
     for (const auto& p : computed) {
       nlohmann::json j = to_json(p);
       j["fingerprint"] = fingerprint(p.index);
-      if (run.sharded() && range.contains(p.index))
+      if (write_pictures && range.contains(p.index))
         j["picture"] = file_identity(picture_path(config, p.index));
       write_file_atomic(pairs_path(config, p.index), j.dump(1) + "\n");
     }
@@ -229,6 +232,21 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
   run.set_report("pair_seconds", pair_seconds);
   if (pairs_computed > 0) run.set_report("pair_seconds_per_slice", pair_seconds / pairs_computed);
 
+  // --records-only (a cluster's measure step): stop here; the solve, the registered slices and
+  // the QC overlays come from the next run over the records. Were the shard that happens to
+  // finish last to solve and draw its range's overlays (~2-5 s at 2048x1216), the measure
+  // step's shards would differ by that much and the step take as long as the slowest.
+  const std::string tpath = transforms_path(config);
+  if (options.records_only) {
+    run.set_report("waiting",
+                   cat("--records-only: ", pairs_computed, " pair records measured, ",
+                       range.size() - pairs_computed,
+                       " up to date; the solve (transforms.json), the registered slices and the "
+                       "QC overlays come from the next run over the records"));
+    run.add_bytes(bytes.load());
+    return run.finish(tpath);
+  }
+
   // 2. Solve when every slice's record is present.
   std::vector<SlicePairs> all;
   all.reserve(std::size_t(n));
@@ -237,7 +255,6 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
     if (!p) break;
     all.push_back(std::move(*p));
   }
-  const std::string tpath = transforms_path(config);
   if (int(all.size()) == n && n > 0) {
     const cv::Size size = read_slice_size(files[0].path, config.rgb.raw);
     StackSolveOptions so;

@@ -323,11 +323,13 @@ void keep_slice_buffers() {
 
 int stage_main(const std::string& program, int argc, char** argv, const std::string& description,
                const std::function<StageResult(const Config&, const StageOptions&)>& body,
-               bool sharded) {
+               bool sharded, const std::string& extra_usage,
+               const std::function<void(Args&, StageOptions&)>& extra) {
   return run_main(program, argc, argv, [&](Args& args) {
-    args.describe(cat("--config CONFIG ", sharded ? "[--slices A:B] " : "",
-                      "[--force] [--quiet] [--threads N]"),
-                  description);
+    args.describe(
+        cat("--config CONFIG ", sharded ? "[--slices A:B] " : "",
+            "[--force] [--quiet] [--threads N]", extra_usage.empty() ? "" : " ", extra_usage),
+        description);
     auto config_path = args.option("--config", "CONFIG", "pipeline config (JSON)");
     StageOptions options;
     if (sharded)
@@ -338,6 +340,7 @@ int stage_main(const std::string& program, int argc, char** argv, const std::str
     options.quiet = args.flag("--quiet", "no progress or summary output");
     auto threads =
         args.option_int("--threads", "N", "threads in all, this one included (default: all cores)");
+    if (extra) extra(args, options);
     args.done();
     if (!config_path) throw UsageError("--config CONFIG is required");
     if (threads) {

@@ -65,6 +65,12 @@ dry_chain 3 "01-register-measure.sh 02-slices.sh 03-pack-merge.sh 04-vdb.sh " 3
 grep -q 'vispack-run .* --slices \$a:\$b --from register --to pack ' "$tmp/run/02.sh" ||
   fail "the per-slice job is not one vispack-run --slices A:B --from register --to pack"
 [[ $(grep -c "^\(exec \)\?$bin/" "$tmp/run/02.sh") == 1 ]] || fail "the per-slice job runs more than one process"
+# The measure shards only measure (none solves, whichever ends last); one shard measures and solves.
+grep -q -- '/vispack-register --config .* --slices \$a:\$b --records-only ' "$tmp/run/01.sh" ||
+  fail "3 shards: the measure job does not run vispack-register --records-only"
+"$root/scripts/vispack-slurm" "$config" --shards 1 --bin "$bin" --dry-run |
+  grep -A20 '01-register-measure.sh$' | grep -q -- '--records-only' &&
+  fail "1 shard: the measure job must solve (no --records-only)"
 # The OpenVDB export in three parts, one per shard, and no whole file.
 parts=$(cd "$tmp/my dir/out" && ls -- *.slices-*.vdb 2>/dev/null | tr '\n' ' ')
 [[ $parts == "volume.slices-0000-0008.vdb volume.slices-0008-0016.vdb volume.slices-0016-0024.vdb " ]] ||

@@ -575,6 +575,45 @@ TEST(RegisterStage, OverlayFromTheKeptPictureMatchesTheFullSizePath) {
   EXPECT_GT(cv::mean(shifted)[0], 2.0 * cv::mean(diff)[0] + 0.5);
 }
 
+// --records-only shards measure their records only, whichever finishes last: none solves or
+// draws (a cluster's measure shards then take the same time), and every shard's report says it
+// waits. The second pass of a shard solves the whole stack and draws its own range's overlays;
+// a shard run without the flag that recomputes its records (--force) solves too.
+TEST(RegisterStage, RecordsOnlyShardsMeasureOnly) {
+  TempDir dir;
+  const vp::Config config = vispack::test::make_phantom_case(dir.path(), "tiny", 3, 12);
+  auto options = vispack::test::quiet_stage_options();
+  options.records_only = true;
+  const std::string qc = vp::stage_dir(config, "register") + "/qc/";
+  const std::string reports = vp::stage_dir(config, "register") + "/report-";
+  for (const auto& [range, report] : {std::pair{"0:6", "0-6"}, std::pair{"6:12", "6-12"}}) {
+    options.slices = range;
+    vp::run_register_stage(config, options);
+    const auto j = nlohmann::json::parse(vispack::read_file(reports + report + ".json"));
+    EXPECT_EQ(j.value("pairs_computed", -1), 6) << range;
+    EXPECT_NE(j.value("waiting", "").find("6 pair records measured"), std::string::npos)
+        << range << ": " << j.dump();
+  }
+  EXPECT_FALSE(std::filesystem::exists(vp::transforms_path(config)));
+  EXPECT_FALSE(std::filesystem::exists(qc + "overlay_0000.png"));
+  EXPECT_FALSE(std::filesystem::exists(qc + "overlay_0011.png"));
+  // The second pass of shard 6:12: every record present, none computed: solves and draws 6..11.
+  options.records_only = false;
+  vp::run_register_stage(config, options);
+  const auto j = nlohmann::json::parse(vispack::read_file(reports + "6-12.json"));
+  EXPECT_EQ(j.value("pairs_computed", -1), 0);
+  EXPECT_FALSE(j.contains("waiting")) << j.dump();
+  EXPECT_TRUE(std::filesystem::exists(vp::transforms_path(config)));
+  EXPECT_TRUE(std::filesystem::exists(qc + "overlay_0011.png"));
+  EXPECT_FALSE(std::filesystem::exists(qc + "overlay_0000.png"));
+  std::filesystem::remove(vp::transforms_path(config));
+  options.slices = "0:6";
+  options.force = true;
+  vp::run_register_stage(config, options);
+  EXPECT_TRUE(std::filesystem::exists(vp::transforms_path(config)));
+  EXPECT_TRUE(std::filesystem::exists(qc + "overlay_0000.png"));
+}
+
 // A sharded run keeps each slice's overlay picture with its pair record; the shard run after the
 // solve (a cluster's per-slice job, another process) draws the QC overlay from it, without
 // decoding the full-size slice: slice 3's file is overwritten with garbage of the same size and

@@ -28,12 +28,17 @@ namespace vispack::pipeline {
 // The anchor mode is register.anchor ("auto": ct when configured, else fiducials when found,
 // else none). Without an absolute anchor the stage warns on stderr and in the report.
 // Sharded runs (options.slices = "A:B") compute the records of [A, B) (reading slices down to
-// A−4 for the edges into A). The run that finds every slice's record present (whichever shard
-// finishes last, or the unsharded run) solves and writes transforms.json; a shard writes
-// registered slices and QC overlays of its range only when transforms.json covers the whole
-// stack. So a scheduler runs all shards, then runs the shards (or one unsharded run) again: the
-// second pass reuses the records and only solves and resamples. Shards that solve at the same
-// time find the same transforms and leave transforms.json as it is (compared in memory).
+// A−4 for the edges into A) and keep each slice's overlay picture with its record. The run that
+// finds every slice's record present (whichever shard finishes last, or the unsharded run)
+// solves and writes transforms.json; a shard writes registered slices and QC overlays of its
+// range only when transforms.json covers the whole stack. So a scheduler runs all shards, then
+// runs the shards (or one unsharded run) again: the second pass reuses the records and only
+// solves and resamples. With options.records_only (--records-only: a cluster's first pass,
+// scripts/vispack-slurm with two shards or more) a run stops after its records (and pictures),
+// even when they complete the set: every shard of the pass then does the same work, so an array
+// of them takes as long as its slowest measure, not that plus one shard's solve and overlays.
+// Shards that solve at the same time find the same transforms and leave transforms.json as it
+// is (compared in memory).
 StageResult run_register_stage(const Config& config, const StageOptions& options);
 
 }  // namespace vispack::pipeline

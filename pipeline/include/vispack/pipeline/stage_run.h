@@ -69,6 +69,9 @@ struct StageOptions {
   bool force = false;  // redo every slice of the range even if up to date
   bool quiet = false;  // no progress output
   int threads = 0;     // worker threads; 0 = resolve_threads() (all cores, VISPACK_THREADS)
+  // vispack-register --records-only: measure the range's pair records and stop, even when they
+  // complete the set (the first pass of a sharded run: register_stage.h). Other stages ignore it.
+  bool records_only = false;
 };
 
 // What a stage run did, for vispack-run's summary.
@@ -182,9 +185,12 @@ void keep_slice_buffers();
 //   vispack-<stage> --config CONFIG [--slices A:B] [--force] [--quiet] [--threads N]
 // Parses those, loads the config, runs `body` and prints the result (unless --quiet) as
 // "<stage>: N slices computed, M up to date in S s -> OUTPUT". Exit codes as run_main.
-// `sharded` false: a whole-stack tool (vispack-merge), without --slices.
+// `sharded` false: a whole-stack tool (vispack-merge), without --slices. `extra` declares a
+// tool's own options on `args` and sets them in `options` (before args.done()); `extra_usage`
+// shows them on the usage line ("[--records-only]").
 int stage_main(const std::string& program, int argc, char** argv, const std::string& description,
                const std::function<StageResult(const Config&, const StageOptions&)>& body,
-               bool sharded = true);
+               bool sharded = true, const std::string& extra_usage = "",
+               const std::function<void(Args&, StageOptions&)>& extra = {});
 
 }  // namespace vispack::pipeline
