@@ -11,6 +11,7 @@
 
 #include <openvdb/openvdb.h>
 #include <tbb/global_control.h>
+#include <tbb/task_arena.h>
 
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
@@ -71,7 +72,10 @@ std::string vdb_part_path(const Config& config, int first, int last) {
   return (whole.parent_path() / (whole.stem().string() + range + ".vdb")).string();
 }
 
-StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
+namespace {
+
+// The export itself: run_vdb_stage runs it inside its TBB arena.
+StageResult export_vdb(const Config& config, const StageOptions& options) {
   if (!config.vdb.enabled || config.vdb_output.empty())
     throw ConfigError(cat(config.path, ": vdb.enabled is false: no OpenVDB export configured"));
   const int stack = int(stack_slices(config).size());
@@ -101,10 +105,6 @@ StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
     return run.finish(output);
   }
 
-  // OpenVDB's own parallel loops (TBB: the delayed-load metadata it computes while writing)
-  // stay within --threads too: a task given one core uses one.
-  const tbb::global_control tbb_threads(tbb::global_control::max_allowed_parallelism,
-                                        std::size_t(run.threads()));
   const format::Reader reader = format::Reader::open(config.output);
   const VdbLevelChoice choice = choose_vdb_level(config, reader, run.threads());
   const int level = choice.level;
@@ -331,6 +331,22 @@ StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
   run.set_quality("active_voxels", active);
   run.set_quality("leaves", leaves);
   return run.finish(output);
+}
+
+}  // namespace
+
+StageResult run_vdb_stage(const Config& config, const StageOptions& options) {
+  // OpenVDB's own parallel loops (TBB: the delayed-load metadata it computes while writing)
+  // stay within --threads too: a task given one core uses one. The export runs in an arena of
+  // that many threads, so its loops ask TBB for no more workers than that (with one thread, for
+  // none: no worker wakes, not even after the stage, when a limit alone would lift and let a
+  // worker visit the loops' old arena); the global limit bounds loops reached from any other
+  // thread (the writer's second thread).
+  const int threads = resolve_threads(options.threads);
+  const tbb::global_control tbb_threads(tbb::global_control::max_allowed_parallelism,
+                                        std::size_t(threads));
+  tbb::task_arena arena(threads);
+  return arena.execute([&] { return export_vdb(config, options); });
 }
 
 }  // namespace vispack::pipeline
