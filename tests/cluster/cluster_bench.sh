@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Measures the cluster path (docs/BENCHMARKS.md "Cluster"), as root, on a one-node SLURM
 # (tests/cluster/one_node_slurm.sh) on this machine:
+#   0. what the machine gives a second worker process at all (build/bin/machine_bench);
 #   1. per-job overhead: a chain of 8 single jobs running `true` (sbatch --dependency=afterok),
 #      and the same 8 as Snakemake --slurm rules;
 #   2. the vhp phantom (2048x1216, SLICES slices) through scripts/vispack-slurm with 1 and 2
@@ -49,6 +50,13 @@ seconds_of() { sed -n 's/.*"seconds": *\([0-9.e+-]*\).*/\1/p' "$1" | head -n1; }
 echo "machine: $(nproc) cores, $(awk '/MemTotal/ { printf "%.1f GiB", $2 / 1048576 }' /proc/meminfo), load average at start: $(cut -d' ' -f1-3 /proc/loadavg)"
 echo "commit: $(git -C "$root" rev-parse --short HEAD)$(git -C "$root" diff --quiet HEAD -- . 2>/dev/null || echo ' (dirty tree)')"
 if ((!merge_only)); then
+# What the machine itself gives a second worker process (compute, fresh memory, memory reads):
+# the ceiling the chain's 1 -> 2 workers speed-up is read against (~80 s).
+if [[ -x $bin/machine_bench ]]; then
+  "$bin/machine_bench" | sed 's/^/machine_bench: /'
+else
+  echo "machine_bench: not built in $bin (tests/bench); the machine's own ceiling not measured"
+fi
 start_one_node_slurm "$tmp/cluster"
 
 # 1. Per-job overhead.
