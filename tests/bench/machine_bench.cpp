@@ -3,15 +3,15 @@
 // together), round after round, interleaved (alone, at once, alone, ...). The cluster chain's
 // workers are processes, one per shard (tests/cluster/cluster_bench.sh), so this is the ceiling
 // against which its "1 -> 2 workers" speed-up is read (docs/BENCHMARKS.md "Cluster"):
-//   compute      a dependent integer loop in registers (no memory traffic): what two free cores
-//   give fresh memory first touch of --mib MiB of new anonymous memory, one write per 4 KiB page,
-//   then
-//                unmapped: the page faults every new process pays for its buffers. Before each
-//                timing the bench waits --settle-s seconds, so that memory freed by the previous
-//                one is as cold as a new process's (a VM with free page reporting hands freed
-//                pages back to its host after a few seconds)
-//   memory read  passes over --mib MiB touched beforehand (not timed): memory bandwidth and the
-//                shared cache
+//   compute       a dependent integer loop in registers, no memory traffic: what two free
+//                 cores give
+//   fresh memory  first touch of --mib MiB of new anonymous memory, one write per 4 KiB page,
+//                 then unmapped: the page faults every new process pays for its buffers. Before
+//                 each timing the bench waits --settle-s seconds, so that memory freed by the
+//                 previous one is as cold as a new process's (a VM with free page reporting
+//                 hands freed pages back to its host after a few seconds)
+//   memory read   passes over --mib MiB touched beforehand (not timed): memory bandwidth and
+//                 the shared cache
 // Prints one row per workload: the median time alone, the median of the slower of the two at
 // once, the cost per worker at once, and the speed-up two workers could reach at best
 // (2 x alone / at once). Exits 2 with a message on a bad argument, 1 when a child fails.
@@ -26,7 +26,6 @@
 #include <cstdint>
 #include <cstdio>
 #include <cstdlib>
-#include <cstring>
 #include <string>
 #include <thread>
 #include <vector>
@@ -90,7 +89,12 @@ double run_workload(Workload workload, const Options& options) {
 // (empty when a child failed).
 std::vector<double> run_at_once(Workload workload, const Options& options, int workers) {
   int go[2], back[2];
-  if (pipe(go) != 0 || pipe(back) != 0) return {};
+  if (pipe(go) != 0) return {};
+  if (pipe(back) != 0) {
+    close(go[0]);
+    close(go[1]);
+    return {};
+  }
   std::vector<pid_t> children;
   for (int w = 0; w < workers; ++w) {
     const pid_t pid = fork();
