@@ -8,6 +8,8 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <initializer_list>
+#include <memory>
 #include <system_error>
 #include <vector>
 
@@ -136,30 +138,59 @@ void check_png_complete(const std::string& path, std::uint64_t size) {
   throw InputError(cat(path, ": PNG is truncated (", size, " bytes, chunks end without IEND)"));
 }
 
-// A BMP's size from its header, checked against the limits before OpenImageIO opens it: its BMP
-// reader decodes a run-length-encoded image inside open(), sized by the header's width and
-// height, so a hostile header made it allocate (or throw std::length_error out of) gigabytes
-// before any size could be checked (found by fuzz_raw_slice). Reads 30 bytes.
+// A BMP's header, checked before OpenImageIO opens the file. OpenImageIO 2.4's BMP reader trusts
+// its header (both found by fuzz_raw_slice):
+// - it decodes a run-length-encoded image inside open(), sized by the header's width and height,
+//   so a hostile header made it allocate (or throw std::length_error out of) gigabytes before any
+//   size could be checked;
+// - it runs a run-length-encoded image through the colour table whatever the header's bits per
+//   pixel, so run-length encoding at 24 bits per pixel (no colour table) read from an empty table:
+//   a segmentation fault.
+// So the size must fit the limits, the bits per pixel must be one BMP defines, and a compression
+// must be one BMP defines for those bits (RLE8 at 8, RLE4 at 4, bit fields at 16 or 32); JPEG or
+// PNG inside a BMP are refused too (the reader would show their bytes as pixels). Reads 34 bytes.
 void check_bmp_header(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
-  unsigned char h[30] = {};
+  unsigned char h[34] = {};
   in.read(reinterpret_cast<char*>(h), sizeof h);
   const std::streamsize got = in.gcount();
   if (got < 2 || h[0] != 'B' || h[1] != 'M') return;  // not a BMP
-  if (got < 26) throw InputError(cat(path, ": BMP header is truncated (", got, " bytes)"));
+  auto truncated = [&] {
+    return InputError(cat(path, ": BMP header is truncated (", got, " bytes)"));
+  };
+  if (got < 26) throw truncated();
   auto u16 = [&](int at) { return std::uint32_t(h[at]) | std::uint32_t(h[at + 1]) << 8; };
   auto u32 = [&](int at) { return u16(at) | u16(at + 2) << 16; };
   const std::uint32_t dib = u32(14);
   std::int64_t width = 0, height = 0;
-  if (dib == 12) {  // BITMAPCOREHEADER: 16-bit sizes
+  std::uint32_t bits = 0, compression = 0;
+  if (dib == 12) {  // BITMAPCOREHEADER: 16-bit sizes, no compression
     width = u16(18);
     height = u16(20);
+    bits = u16(24);
   } else {
+    if (got < 34) throw truncated();
     width = std::int32_t(u32(18));
     height = std::int32_t(u32(22));
     if (height < 0) height = -height;  // top-down rows
+    bits = u16(28);
+    compression = u32(30);
   }
   check_size(path, width, height, 4, 1);
+  if (bits != 1 && bits != 4 && bits != 8 && bits != 16 && bits != 24 && bits != 32) {
+    throw InputError(
+        cat(path, ": BMP with ", bits, " bits per pixel (1, 4, 8, 16, 24 or 32 supported)"));
+  }
+  const bool fits = compression == 0 || (compression == 1 && bits == 8) ||
+                    (compression == 2 && bits == 4) ||
+                    (compression == 3 && (bits == 16 || bits == 32));
+  if (!fits) {
+    static const char* const kNames[] = {"none", "RLE8", "RLE4", "bit fields", "JPEG", "PNG"};
+    const std::string name = compression < 6 ? kNames[compression] : "unknown";
+    throw InputError(cat(path, ": BMP compression ", compression, " (", name, ") at ", bits,
+                         " bits per pixel is not supported (none; RLE8 at 8, RLE4 at 4 or bit "
+                         "fields at 16 or 32 bits per pixel)"));
+  }
 }
 
 // OpenImageIO's readers can throw C++ exceptions of their own (std::length_error, bad_alloc)
@@ -175,14 +206,79 @@ auto guard_decoder(const std::string& path, F&& f) -> decltype(f()) {
   }
 }
 
-cv::Mat read_oiio_unguarded(const std::string& path) {
+// The image formats a slice may be in, told by the file's first bytes (the name may say anything).
+// OpenImageIO, asked to open a file, tries every reader it has when the one the name points to
+// refuses it (Targa, PSD, RLA, DDS, ... about thirty, by content): each one more decoder for a
+// corrupt or hostile file to reach. vispack opens a slice with the one reader its bytes name.
+struct SliceFormat {
+  const char* reader;  // OpenImageIO's format name
+  const char* name;    // for messages
+};
+
+SliceFormat sniff_format(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw InputError(cat(path, ": cannot read slice: cannot open the file"));
+  unsigned char h[8] = {};
+  in.read(reinterpret_cast<char*>(h), sizeof h);
+  const std::streamsize got = in.gcount();
+  if (got == 0) throw InputError(cat(path, ": slice file is empty (0 bytes)"));
+  auto starts = [&](std::initializer_list<unsigned char> magic) {
+    return got >= std::streamsize(magic.size()) && std::equal(magic.begin(), magic.end(), h);
+  };
+  if (starts({0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'})) return {"png", "PNG"};
+  if (starts({'I', 'I', 42, 0}) || starts({'M', 'M', 0, 42}) || starts({'I', 'I', 43, 0}) ||
+      starts({'M', 'M', 0, 43}))
+    return {"tiff", "TIFF"};
+  if (starts({0xff, 0xd8, 0xff})) return {"jpeg", "JPEG"};
+  if (starts({'B', 'M'})) return {"bmp", "BMP"};
+  if (got >= 2 && h[0] == 'P' && h[1] >= '1' && h[1] <= '6') return {"pnm", "PNM"};
+  std::string first;
+  for (std::streamsize i = 0; i < got; ++i) {
+    static const char* const kHex = "0123456789abcdef";
+    first += cat(i ? " " : "", kHex[h[i] >> 4], kHex[h[i] & 15]);
+  }
+  throw InputError(cat(path, ": cannot read slice: not a PNG, TIFF, JPEG, BMP or PNM image (first ",
+                       "bytes ", first, "); header-less slices need the config's \"raw\" layout"));
+}
+
+std::unique_ptr<OIIO::ImageInput> open_oiio(const std::string& path, const SliceFormat& format,
+                                            bool bmp_grey_as_rgb) {
   OIIO::ImageSpec config;
   config.attribute("oiio:UnassociatedAlpha", 1);  // keep colour as stored next to an alpha
-  auto input = OIIO::ImageInput::open(path, &config);
+  if (bmp_grey_as_rgb) config.attribute("bmp:monochrome_detect", 0);
+  auto input = OIIO::ImageInput::create(format.reader);
   if (!input) {
-    std::string why = one_line(OIIO::geterror());
-    if (why.empty()) why = "unknown image format";
-    throw InputError(cat(path, ": cannot read image: ", why));
+    throw InputError(cat(path, ": cannot read ", format.name,
+                         " images: OpenImageIO has no reader for them (",
+                         one_line(OIIO::geterror()), ")"));
+  }
+  OIIO::ImageSpec spec;
+  if (!input->open(path, spec, config)) {
+    std::string why = one_line(input->geterror());
+    if (why.empty()) why = one_line(OIIO::geterror());
+    if (why.empty()) why = "the reader refused it";
+    throw InputError(cat(path, ": cannot read ", format.name, " image: ", why));
+  }
+  return input;
+}
+
+// OpenImageIO 2.4 shows an 8-bit BMP whose colour table is all grey as one channel, but for a
+// run-length-encoded one it still writes three bytes per pixel: past the end of the caller's
+// buffer (a heap overflow, found while checking fuzz_raw_slice's BMP finding). Such a file is
+// opened again as RGB and its first channel kept: the same grey image, in the caller's bounds.
+bool is_grey_run_length_bmp(OIIO::ImageInput& input) {
+  if (std::strcmp(input.format_name(), "bmp") != 0 || input.spec().nchannels != 1) return false;
+  const std::string compression = input.spec().get_string_attribute("compression");
+  return compression == "rle8" || compression == "rle4";
+}
+
+cv::Mat read_oiio_unguarded(const std::string& path, const SliceFormat& format) {
+  auto input = open_oiio(path, format, false);
+  bool keep_first_channel = false;
+  if (is_grey_run_length_bmp(*input)) {
+    input->close();
+    input = open_oiio(path, format, true);
+    keep_first_channel = true;
   }
   const OIIO::ImageSpec& spec = input->spec();
   if (spec.depth > 1) {
@@ -190,8 +286,8 @@ cv::Mat read_oiio_unguarded(const std::string& path) {
   }
   const int file_channels = spec.nchannels;
   int channels = 0;
-  if (file_channels == 1 || file_channels == 2) {
-    channels = 1;  // grey (+ alpha, dropped)
+  if (file_channels == 1 || file_channels == 2 || keep_first_channel) {
+    channels = 1;  // grey (+ alpha, dropped; or a grey BMP read as RGB)
   } else if (file_channels == 3 || file_channels == 4) {
     channels = 3;  // RGB (+ alpha, dropped)
   } else {
@@ -248,21 +344,18 @@ cv::Mat read_slice(const std::string& path, const std::optional<RawLayout>& raw)
   if (ec) throw InputError(cat(path, ": cannot read slice: ", ec.message()));
   if (size == 0) throw InputError(cat(path, ": slice file is empty (0 bytes)"));
   if (raw) return read_raw(path, *raw, size);
+  const SliceFormat format = sniff_format(path);
   check_png_complete(path, size);
   check_bmp_header(path);
-  return guard_decoder(path, [&] { return read_oiio_unguarded(path); });
+  return guard_decoder(path, [&] { return read_oiio_unguarded(path, format); });
 }
 
 cv::Size read_slice_size(const std::string& path, const std::optional<RawLayout>& raw) {
   if (raw) return {raw->width, raw->height};
+  const SliceFormat format = sniff_format(path);
   check_bmp_header(path);
   return guard_decoder(path, [&] {
-    auto input = OIIO::ImageInput::open(path);
-    if (!input) {
-      std::string why = one_line(OIIO::geterror());
-      if (why.empty()) why = "unknown image format";
-      throw InputError(cat(path, ": cannot read image: ", why));
-    }
+    auto input = open_oiio(path, format, false);
     const cv::Size size(input->spec().width, input->spec().height);
     input->close();
     return size;

@@ -1,6 +1,6 @@
 // Fuzz target: the slice reader — header-less raw slices with any declared layout, and PNG/TIFF/
-// JPEG through OpenImageIO. Input: 8 bytes choosing the layout/format, then the file's bytes.
-// Any input must give a cv::Mat of the declared size or an InputError — never a crash.
+// JPEG/BMP/PNM through OpenImageIO. Input: 8 bytes choosing the layout/format, then the file's
+// bytes. Any input must give a cv::Mat of the declared size or an InputError — never a crash.
 #include <opencv2/core.hpp>
 
 #include "fuzz_target.h"
@@ -77,6 +77,17 @@ void vispack_fuzz_write_seeds(const std::string& dir) {
       0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00,
       0x00, 0x00, 0x09, 0x6f, 0x46, 0x46, 0x73, 0x00, 0x00, 0x00, 0x00};
   vispack_fuzz_write(dir + "/regression-huge-rle-bmp.bin", kHugeRleBmp, sizeof kHugeRleBmp);
+  // Regression: a BMP run-length encoded (RLE4) at 24 bits per pixel, 11 x 9216 pixels (OpenImageIO
+  // 2.4's reader ran its pixels through an empty colour table: a segmentation fault; found by CI's
+  // short fuzz run, 2026-11-26). The first 8 bytes choose a .bmp name, then come the file's.
+  static const char kRleAt24BitsBmp[] =
+      "\x00\x00\x00\x00\x00\x01\x03\x00\x42\x4d\x32\x01\x00\x00\x00\x00"
+      "\x00\x00\x36\x00\x00\x00\x28\x00\x00\x00\x0b\x00\x00\x00\x00\x24"
+      "\x00\x00\x07\x01\x18\x00\x02\x00\x00\x00\x00\x00\x00\x00\x00\x00"
+      "\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00\x00"
+      "\x00\x01\x07\x09\x6f\x46\x46\x73\x00\x00\x00\x00";
+  vispack_fuzz_write(dir + "/regression-rle-at-24-bits-bmp.bin", kRleAt24BitsBmp,
+                     sizeof kRleAt24BitsBmp - 1);
   // Image seeds: a small RGB and a 16-bit grey image in each container.
   cv::Mat rgb(7, 11, CV_8UC3), grey(5, 6, CV_16UC1);
   cv::randu(rgb, 0, 255);
@@ -95,5 +106,15 @@ void vispack_fuzz_write_seeds(const std::string& dir) {
       vispack_fuzz_write(dir + "/image-" + std::to_string(e) + "-" + std::to_string(k) + ".bin",
                          file.data(), file.size());
     }
+  }
+  // PNM seeds (read by their bytes whatever the name): binary RGB, binary 16-bit grey, ASCII grey.
+  const std::string pnms[] = {std::string("P6\n3 2\n255\n") + std::string(18, '\x5a'),
+                              std::string("P5\n2 2\n65535\n") + std::string(8, '\x7f'),
+                              "P2\n# grey\n2 2\n15\n0 5\n10 15\n"};
+  for (int i = 0; i < 3; ++i) {
+    std::string file(kPrefix, '\0');
+    file[5] = 1;
+    file += pnms[i];
+    vispack_fuzz_write(dir + "/pnm-" + std::to_string(i) + ".bin", file.data(), file.size());
   }
 }

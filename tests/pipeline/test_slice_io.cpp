@@ -7,6 +7,7 @@
 #include <fstream>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
@@ -304,6 +305,144 @@ TEST(SliceIo, HugeRunLengthBmpIsRefusedBeforeTheDecoder) {
   expect_error<vispack::InputError>([&] { vp::read_slice(dir / "huge.bmp"); }, "huge.bmp");
   expect_error<vispack::InputError>([&] { vp::read_slice_size(dir / "huge.bmp"); }, "huge.bmp");
   EXPECT_EQ(vp::read_slice(good).size(), cv::Size(9, 5));
+}
+
+namespace {
+
+// A BMP written byte by byte: BITMAPINFOHEADER, `palette` (grey levels) as its colour table and
+// `pixels` as its pixel data, stored as given (uncompressed rows or a run-length stream).
+std::string make_bmp(int width, int height, int bits, int compression,
+                     const std::vector<int>& palette, const std::string& pixels) {
+  std::string out;
+  auto put = [&](std::uint32_t v, int bytes) {
+    for (int i = 0; i < bytes; ++i)
+      out += static_cast<char>((v >> (8 * i)) & 0xff);
+  };
+  const std::uint32_t offset = 14 + 40 + 4 * std::uint32_t(palette.size());
+  out += "BM";
+  put(offset + std::uint32_t(pixels.size()), 4);
+  put(0, 4);
+  put(offset, 4);
+  put(40, 4);
+  put(std::uint32_t(width), 4);
+  put(std::uint32_t(height), 4);
+  put(1, 2);  // planes
+  put(std::uint32_t(bits), 2);
+  put(std::uint32_t(compression), 4);
+  put(std::uint32_t(pixels.size()), 4);
+  put(2835, 4);
+  put(2835, 4);
+  put(std::uint32_t(palette.size()), 4);
+  put(0, 4);
+  for (int grey : palette)
+    put(std::uint32_t(grey) * 0x010101u, 4);
+  return out + pixels;
+}
+
+}  // namespace
+
+TEST(SliceIo, BmpWhoseCompressionDoesNotFitItsBitsIsRefusedBeforeTheDecoder) {
+  // Run-length encoding at 24 bits per pixel: OpenImageIO 2.4 ran it through an empty colour
+  // table and crashed (segmentation fault; found by fuzz_raw_slice in CI, 2026-11-26). Refused
+  // with an error naming the file and what is wrong, like JPEG inside a BMP and a bit depth BMP
+  // does not define; the BMP they were made from still reads.
+  TempDir dir;
+  const std::string good = dir / "good.bmp";
+  vp::write_image(good, make_image(9, 5, CV_8UC3));
+  const std::string bytes = read_bytes(good);
+  ASSERT_EQ(bytes[28], 24);
+  struct Case {
+    const char* name;
+    int bits;
+    int compression;
+    const char* needle;
+  };
+  for (const Case& c : {Case{"rle8-at-24.bmp", 24, 1, "compression 1 (RLE8) at 24 bits"},
+                        Case{"rle4-at-24.bmp", 24, 2, "compression 2 (RLE4) at 24 bits"},
+                        Case{"rle4-at-8.bmp", 8, 2, "compression 2 (RLE4) at 8 bits"},
+                        Case{"jpeg.bmp", 24, 4, "compression 4 (JPEG)"},
+                        Case{"seven-bits.bmp", 7, 0, "7 bits per pixel"}}) {
+    std::string bad = bytes;
+    bad[28] = static_cast<char>(c.bits);
+    bad[30] = static_cast<char>(c.compression);
+    write_bytes(dir / c.name, bad);
+    const std::string message = std::string(c.name) + ": BMP ";
+    expect_error<vispack::InputError>([&] { vp::read_slice(dir / c.name); }, message);
+    expect_error<vispack::InputError>([&] { vp::read_slice(dir / c.name); }, c.needle);
+    expect_error<vispack::InputError>([&] { vp::read_slice_size(dir / c.name); }, c.needle);
+  }
+  EXPECT_TRUE(equal(vp::read_slice(good), make_image(9, 5, CV_8UC3)));
+}
+
+TEST(SliceIo, GreyRunLengthBmpReadsAsItsGreyLevels) {
+  // An 8-bit run-length-encoded BMP with a grey colour table: OpenImageIO 2.4 calls it one
+  // channel but wrote three bytes per pixel (each row smeared, the last past the buffer's end).
+  // vispack reads it as the grey image it holds, every pixel checked; a colour table that is not
+  // grey still gives RGB.
+  const int width = 7, height = 3;
+  std::vector<int> grey(256);
+  for (int i = 0; i < 256; ++i)
+    grey[i] = 255 - i;
+  cv::Mat expected(height, width, CV_8UC1);
+  std::string runs;
+  for (int row = 0; row < height; ++row) {  // stored bottom-up
+    const int y = height - 1 - row;
+    runs += std::string{char(0), char(width)};  // an absolute run of `width` indices
+    for (int x = 0; x < width; ++x) {
+      const int index = 10 * x + 40 * y + 1;
+      runs += static_cast<char>(index);
+      expected.at<std::uint8_t>(y, x) = static_cast<std::uint8_t>(grey[index]);
+    }
+    runs += std::string(1, char(0));  // absolute runs pad to an even length
+    runs += std::string{char(0), char(row + 1 == height ? 1 : 0)};  // end of line / bitmap
+  }
+  TempDir dir;
+  write_bytes(dir / "grey.bmp", make_bmp(width, height, 8, 1, grey, runs));
+  const cv::Mat image = vp::read_slice(dir / "grey.bmp");
+  ASSERT_EQ(image.type(), CV_8UC1);
+  EXPECT_TRUE(equal(image, expected)) << image << "\n" << expected;
+
+  std::string colour = make_bmp(width, height, 8, 1, grey, runs);
+  colour[54 + 4] = 0x56;  // entry 1 (B, G, R) no longer grey: the table is a colour one
+  colour[54 + 5] = 0x34;
+  colour[54 + 6] = 0x12;
+  write_bytes(dir / "colour.bmp", colour);
+  const cv::Mat rgb = vp::read_slice(dir / "colour.bmp");
+  ASSERT_EQ(rgb.type(), CV_8UC3);
+  EXPECT_EQ(rgb.at<cv::Vec3b>(0, 0), cv::Vec3b(0x12, 0x34, 0x56));  // index 1, in RGB order
+  cv::Mat green;
+  cv::extractChannel(rgb, green, 1);
+  expected.at<std::uint8_t>(0, 0) = 0x34;
+  EXPECT_TRUE(equal(green, expected));
+}
+
+TEST(SliceIo, FormatIsToldByTheFirstBytesAndOnlyItsReaderIsTried) {
+  // OpenImageIO, handed a file its named reader refuses, tries every other reader it has. A
+  // Targa image (no magic number) named .png was read by its Targa reader; vispack refuses it,
+  // naming the file and its first bytes. A PNM named .png is read by the PNM reader, as its bytes
+  // say; a PNG named .tif likewise.
+  TempDir dir;
+  const std::string targa(
+      "\x00\x00\x02\x00\x00\x00\x00\x00\x00\x00\x00\x00\x02\x00\x01\x00\x18\x20"
+      "\x01\x02\x03\x04\x05\x06",
+      24);
+  write_bytes(dir / "targa.png", targa);
+  for (auto read : {+[](const std::string& p) { vp::read_slice(p); },
+                    +[](const std::string& p) { vp::read_slice_size(p); }}) {
+    expect_error<vispack::InputError>([&] { read(dir / "targa.png"); },
+                                      "targa.png: cannot read slice: not a PNG, TIFF, JPEG, BMP "
+                                      "or PNM image (first bytes 00 00 02 00 00 00 00 00)");
+  }
+  write_bytes(dir / "pnm.png",
+              std::string("P6\n2 1\n255\n") + std::string("\x01\x02\x03\x04\x05\x06", 6));
+  const cv::Mat pnm = vp::read_slice(dir / "pnm.png");
+  ASSERT_EQ(pnm.type(), CV_8UC3);
+  EXPECT_EQ(pnm.at<cv::Vec3b>(0, 1), cv::Vec3b(4, 5, 6));
+  const cv::Mat image = make_image(5, 4, CV_16UC1);
+  vp::write_image(dir / "png.png", image);
+  std::filesystem::rename(dir / "png.png", dir / "png.tif");
+  EXPECT_TRUE(equal(vp::read_slice(dir / "png.tif"), image));
+  EXPECT_EQ(vp::read_slice_size(dir / "png.tif"), cv::Size(5, 4));
 }
 
 TEST(ListSlices, NumericSortAndPatternMatching) {

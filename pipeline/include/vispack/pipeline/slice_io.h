@@ -36,13 +36,15 @@ std::vector<SliceFile> list_slices(const SliceSource& source);
 
 // Reads one slice. Colour comes back in RGB order as CV_8UC3 / CV_16UC3 (an alpha channel in the
 // file is dropped), grey as CV_8UC1 / CV_16UC1. Images with other bit depths are converted: 1..8
-// bit to 8, 9..16 bit (and float) to 16. Without `raw` the file is read through OpenImageIO
-// (PNG, TIFF, BMP, JPEG; the format is recognised from the content); with `raw` it is read as a
+// bit to 8, 9..16 bit (and float) to 16. Without `raw` the file is read through OpenImageIO's
+// reader for the format its first bytes name (PNG, TIFF, JPEG, BMP or binary/ASCII PNM, whatever
+// the file name says; no other of its readers is tried); with `raw` it is read as a
 // header-less raw slice: `header_bytes` skipped, then width*height*channels samples of `bits`
 // each, planar or interleaved, in the declared byte order; the file size must be exactly
 // header_bytes + that many bytes.
 // Throws InputError naming the file: unreadable, zero bytes, truncated or corrupt, unsupported
-// channel count, raw size mismatch, or larger than kMaxImageEdge / kMaxImageBytes.
+// channel count, not one of those formats, a BMP compression that does not fit its bits per pixel,
+// raw size mismatch, or larger than kMaxImageEdge / kMaxImageBytes.
 cv::Mat read_slice(const std::string& path, const std::optional<RawLayout>& raw = std::nullopt);
 
 // The width and height of a slice from its header alone (no pixels decoded): the raw layout's
