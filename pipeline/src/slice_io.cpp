@@ -213,6 +213,7 @@ auto guard_decoder(const std::string& path, F&& f) -> decltype(f()) {
 struct SliceFormat {
   const char* reader;  // OpenImageIO's format name
   const char* name;    // for messages
+  bool is(const char* other) const { return std::strcmp(reader, other) == 0; }
 };
 
 SliceFormat sniff_format(const std::string& path) {
@@ -345,15 +346,15 @@ cv::Mat read_slice(const std::string& path, const std::optional<RawLayout>& raw)
   if (size == 0) throw InputError(cat(path, ": slice file is empty (0 bytes)"));
   if (raw) return read_raw(path, *raw, size);
   const SliceFormat format = sniff_format(path);
-  check_png_complete(path, size);
-  check_bmp_header(path);
+  if (format.is("png")) check_png_complete(path, size);
+  if (format.is("bmp")) check_bmp_header(path);
   return guard_decoder(path, [&] { return read_oiio_unguarded(path, format); });
 }
 
 cv::Size read_slice_size(const std::string& path, const std::optional<RawLayout>& raw) {
   if (raw) return {raw->width, raw->height};
   const SliceFormat format = sniff_format(path);
-  check_bmp_header(path);
+  if (format.is("bmp")) check_bmp_header(path);
   return guard_decoder(path, [&] {
     auto input = open_oiio(path, format, false);
     const cv::Size size(input->spec().width, input->spec().height);
