@@ -20,8 +20,9 @@
 #include "vispack/common/nrrd.h"
 #include "vispack/common/parallel.h"
 #include "vispack/common/progress.h"
-#include "vispack/pipeline/config.h"
-#include "vispack/pipeline/slice_io.h"
+#include "vispack/pipeline/core/config.h"
+#include "vispack/pipeline/core/slice_list.h"
+#include "vispack/pipeline/imaging/slice_io.h"
 
 namespace vispack::phantom {
 namespace {

@@ -19,8 +19,8 @@
 #include "vispack/common/nrrd.h"
 #include "vispack/common/parallel.h"
 #include "vispack/common/progress.h"
-#include "vispack/pipeline/config.h"
-#include "vispack/pipeline/slice_io.h"
+#include "vispack/pipeline/core/config.h"
+#include "vispack/pipeline/imaging/slice_io.h"
 
 namespace vispack::phantom {
 namespace {
@@ -52,8 +52,9 @@ struct Plan {
   int jump = -1, black = -1, duplicate = -1;
   std::vector<SliceTruth> truth;
   Anatomy anatomy;
-  // CT → output grid: the output grid IS the CT frame at the colour resolution (COORD "The output
-  // frame"), so ct_to_rgb is the pixel-size ratio turned and shifted by output_frame (identity).
+  // CT → output grid: the output grid IS the CT frame at the colour resolution
+  // (docs/ARCHITECTURE.md "The output frame"), so ct_to_rgb is the pixel-size ratio turned and
+  // shifted by output_frame (identity).
   double ct_scale = 1, ct_rot = 0, ct_dx = 0, ct_dy = 0;
   pipeline::Rigid output_frame;                // register.output_frame of the config written
   double cam_rot = 0, cam_dx = 0, cam_dy = 0;  // the colour camera's constant offset

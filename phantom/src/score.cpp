@@ -12,7 +12,7 @@
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
 #include "vispack/common/math_constants.h"
-#include "vispack/pipeline/slice_io.h"
+#include "vispack/pipeline/imaging/slice_io.h"
 
 namespace vispack::phantom {
 namespace {

@@ -23,8 +23,8 @@
 #include "vispack/common/atomic_file.h"
 
 #include "vispack/common/parallel.h"
-#include "vispack/pipeline/mask.h"
-#include "vispack/pipeline/transforms.h"
+#include "vispack/pipeline/core/transforms.h"
+#include "vispack/pipeline/mask/mask.h"
 
 namespace vp = vispack::pipeline;
 

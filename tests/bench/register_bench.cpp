@@ -34,7 +34,7 @@
 #include "vispack/common/error.h"
 
 #include "vispack/common/parallel.h"
-#include "vispack/pipeline/register.h"
+#include "vispack/pipeline/register/register.h"
 
 namespace vp = vispack::pipeline;
 

@@ -11,6 +11,7 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
+#include "vispack/pipeline/core/palette.h"
 
 namespace vispack::test {
 

@@ -9,9 +9,10 @@
 #include <opencv2/core.hpp>
 
 #include "samples.h"
-#include "vispack/pipeline/config.h"
-#include "vispack/pipeline/mask.h"
-#include "vispack/pipeline/slice_io.h"
+#include "vispack/pipeline/core/config.h"
+#include "vispack/pipeline/core/slice_list.h"
+#include "vispack/pipeline/imaging/slice_io.h"
+#include "vispack/pipeline/mask/mask.h"
 
 namespace vispack::test {
 namespace {

@@ -14,8 +14,10 @@
 
 #include "samples.h"
 #include "vispack/common/nrrd.h"
-#include "vispack/pipeline/config.h"
-#include "vispack/pipeline/slice_io.h"
+#include "vispack/pipeline/core/config.h"
+#include "vispack/pipeline/core/palette.h"
+#include "vispack/pipeline/core/slice_list.h"
+#include "vispack/pipeline/imaging/slice_io.h"
 
 namespace vispack::test {
 namespace {

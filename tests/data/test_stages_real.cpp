@@ -1,6 +1,6 @@
 // Real-data accuracy of the register and mask stages run as a user runs them (issue 4), through
 // build/bin/vispack-register / vispack-mask when they exist, else the stage functions they wrap
-// (stage.h): the head CT's mask
+// (core/stage_run.h): the head CT's mask
 // excludes the head-holder arc on every slice; the Visible Woman stack's known shifts are
 // recovered and its gel is removed by the colour refinement, checked against hand-set bounds.
 #include <gtest/gtest.h>
@@ -15,14 +15,14 @@
 
 #include "samples.h"
 #include "test_support.h"
-#include "vispack/pipeline/config.h"
-#include "vispack/pipeline/mask.h"
-#include "vispack/pipeline/mask_stage.h"
-#include "vispack/pipeline/register.h"
-#include "vispack/pipeline/register_stage.h"
-#include "vispack/pipeline/slice_io.h"
-#include "vispack/pipeline/stage_run.h"
-#include "vispack/pipeline/work_layout.h"
+#include "vispack/pipeline/core/config.h"
+#include "vispack/pipeline/core/stage_run.h"
+#include "vispack/pipeline/core/work_layout.h"
+#include "vispack/pipeline/imaging/slice_io.h"
+#include "vispack/pipeline/mask/mask.h"
+#include "vispack/pipeline/mask/mask_stage.h"
+#include "vispack/pipeline/register/register.h"
+#include "vispack/pipeline/register/register_stage.h"
 
 namespace vispack::test {
 namespace {

@@ -10,8 +10,8 @@
 #include "scratch.h"
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
-#include "vispack/pipeline/config.h"
-#include "vispack/pipeline/slice_io.h"
+#include "vispack/pipeline/core/config.h"
+#include "vispack/pipeline/imaging/slice_io.h"
 
 namespace {
 

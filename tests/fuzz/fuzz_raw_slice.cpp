@@ -7,7 +7,7 @@
 #include "scratch.h"
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
-#include "vispack/pipeline/slice_io.h"
+#include "vispack/pipeline/imaging/slice_io.h"
 
 using vispack::pipeline::RawLayout;
 

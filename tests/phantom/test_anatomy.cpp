@@ -21,7 +21,7 @@
 #include "vispack/common/math_constants.h"
 #include "vispack/common/nrrd.h"
 #include "vispack/phantom/phantom.h"
-#include "vispack/pipeline/slice_io.h"
+#include "vispack/pipeline/imaging/slice_io.h"
 
 namespace vph = vispack::phantom;
 namespace fs = std::filesystem;

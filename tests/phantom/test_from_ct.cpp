@@ -22,8 +22,8 @@
 #include "vispack/common/math_constants.h"
 #include "vispack/common/nrrd.h"
 #include "vispack/phantom/from_ct.h"
-#include "vispack/pipeline/config.h"
-#include "vispack/pipeline/slice_io.h"
+#include "vispack/pipeline/core/config.h"
+#include "vispack/pipeline/imaging/slice_io.h"
 
 namespace vph = vispack::phantom;
 namespace fs = std::filesystem;

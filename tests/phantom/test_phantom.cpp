@@ -19,8 +19,9 @@
 #include "vispack/common/math_constants.h"
 #include "vispack/common/nrrd.h"
 #include "vispack/phantom/phantom.h"
-#include "vispack/pipeline/config.h"
-#include "vispack/pipeline/slice_io.h"
+#include "vispack/pipeline/core/config.h"
+#include "vispack/pipeline/core/slice_list.h"
+#include "vispack/pipeline/imaging/slice_io.h"
 
 namespace vp = vispack::pipeline;
 namespace vph = vispack::phantom;
@@ -190,8 +191,8 @@ TEST(Phantom, LayoutAndTransformsFile) {
   EXPECT_DOUBLE_EQ(p.rgb.spacing_mm[2], 1.0);
   EXPECT_DOUBLE_EQ(p.transforms["center_px"][0], 47.5);
   EXPECT_DOUBLE_EQ(p.transforms["center_px"][1], 31.5);
-  // The output frame is the CT's (COORD "The output frame"): no reference slice; slice 0 carries
-  // the colour camera's constant offset like every other slice.
+  // The output frame is the CT's (docs/ARCHITECTURE.md "The output frame"): no reference slice;
+  // slice 0 carries the colour camera's constant offset like every other slice.
   EXPECT_EQ(p.transforms["frame"], "ct");
   EXPECT_TRUE(p.transforms["reference_slice"].is_null());
   const json& s0 = p.slice(0);

@@ -6,8 +6,8 @@
 #include <string>
 
 #include "vispack/phantom/phantom.h"
-#include "vispack/pipeline/config.h"
-#include "vispack/pipeline/stage_run.h"
+#include "vispack/pipeline/core/config.h"
+#include "vispack/pipeline/core/stage_run.h"
 
 namespace vispack::test {
 

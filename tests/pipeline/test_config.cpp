@@ -10,7 +10,7 @@
 #include "test_support.h"
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
-#include "vispack/pipeline/config.h"
+#include "vispack/pipeline/core/config.h"
 
 using namespace vispack;
 using namespace vispack::pipeline;

@@ -9,7 +9,7 @@
 #include "test_support.h"
 #include "vispack/common/atomic_file.h"
 #include "vispack/phantom/phantom.h"
-#include "vispack/pipeline/config.h"
+#include "vispack/pipeline/core/config.h"
 
 namespace vp = vispack::pipeline;
 namespace vph = vispack::phantom;

@@ -15,13 +15,13 @@
 #include "vispack/common/error.h"
 #include "vispack/common/nrrd.h"
 #include "vispack/phantom/phantom.h"
-#include "vispack/pipeline/labels.h"
-#include "vispack/pipeline/labels_stage.h"
-#include "vispack/pipeline/register.h"
-#include "vispack/pipeline/register_stage.h"
-#include "vispack/pipeline/slice_io.h"
-#include "vispack/pipeline/stage_run.h"
-#include "vispack/pipeline/work_layout.h"
+#include "vispack/pipeline/core/stage_run.h"
+#include "vispack/pipeline/core/work_layout.h"
+#include "vispack/pipeline/imaging/slice_io.h"
+#include "vispack/pipeline/labels/labels.h"
+#include "vispack/pipeline/labels/labels_stage.h"
+#include "vispack/pipeline/register/register.h"
+#include "vispack/pipeline/register/register_stage.h"
 
 using namespace vispack;
 using namespace vispack::pipeline;

@@ -15,8 +15,8 @@
 #include <opencv2/imgproc.hpp>
 
 #include "vispack/common/math_constants.h"
-#include "vispack/pipeline/config.h"
-#include "vispack/pipeline/mask.h"
+#include "vispack/pipeline/core/config.h"
+#include "vispack/pipeline/mask/mask.h"
 
 namespace vp = vispack::pipeline;
 

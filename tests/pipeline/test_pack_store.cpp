@@ -15,9 +15,10 @@
 #include "vispack/common/nrrd.h"
 #include "vispack/format/reader.h"
 #include "vispack/phantom/phantom.h"
-#include "vispack/pipeline/run.h"
-#include "vispack/pipeline/slice_io.h"
-#include "vispack/pipeline/work_layout.h"
+#include "vispack/pipeline/core/work_layout.h"
+#include "vispack/pipeline/imaging/intermediates.h"
+#include "vispack/pipeline/imaging/slice_io.h"
+#include "vispack/pipeline/run/run.h"
 
 using namespace vispack;
 using namespace vispack::pipeline;

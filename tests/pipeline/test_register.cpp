@@ -19,13 +19,13 @@
 #include "vispack/phantom/from_ct.h"
 #include "vispack/phantom/phantom.h"
 #include "vispack/phantom/score.h"
-#include "vispack/pipeline/config.h"
-#include "vispack/pipeline/register.h"
-#include "vispack/pipeline/register_stage.h"
-#include "vispack/pipeline/slice_io.h"
-#include "vispack/pipeline/stage_run.h"
-#include "vispack/pipeline/transforms.h"
-#include "vispack/pipeline/work_layout.h"
+#include "vispack/pipeline/core/config.h"
+#include "vispack/pipeline/core/stage_run.h"
+#include "vispack/pipeline/core/transforms.h"
+#include "vispack/pipeline/core/work_layout.h"
+#include "vispack/pipeline/imaging/slice_io.h"
+#include "vispack/pipeline/register/register.h"
+#include "vispack/pipeline/register/register_stage.h"
 
 namespace vp = vispack::pipeline;
 namespace vph = vispack::phantom;

@@ -12,7 +12,7 @@
 #include "test_support.h"
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
-#include "vispack/pipeline/register.h"
+#include "vispack/pipeline/register/register.h"
 
 namespace vp = vispack::pipeline;
 

@@ -9,7 +9,7 @@
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
 #include "vispack/phantom/phantom.h"
-#include "vispack/pipeline/run.h"
+#include "vispack/pipeline/run/run.h"
 
 using namespace vispack;
 using namespace vispack::pipeline;

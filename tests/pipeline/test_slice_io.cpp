@@ -15,7 +15,8 @@
 #include "test_support.h"
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
-#include "vispack/pipeline/slice_io.h"
+#include "vispack/pipeline/core/slice_list.h"
+#include "vispack/pipeline/imaging/slice_io.h"
 
 namespace vp = vispack::pipeline;
 using vispack::test::TempDir;

@@ -11,11 +11,11 @@
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
 #include "vispack/phantom/phantom.h"
-#include "vispack/pipeline/pack.h"
-#include "vispack/pipeline/register_stage.h"
-#include "vispack/pipeline/run.h"
-#include "vispack/pipeline/stream.h"
-#include "vispack/pipeline/work_layout.h"
+#include "vispack/pipeline/core/work_layout.h"
+#include "vispack/pipeline/pack/pack.h"
+#include "vispack/pipeline/register/register_stage.h"
+#include "vispack/pipeline/run/run.h"
+#include "vispack/pipeline/run/stream.h"
 
 using namespace vispack;
 using namespace vispack::pipeline;

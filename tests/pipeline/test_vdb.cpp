@@ -25,13 +25,13 @@
 #include "vispack/format/reader.h"
 #include "vispack/format/writer.h"
 #include "vispack/phantom/phantom.h"
-#include "vispack/pipeline/run.h"
-#include "vispack/pipeline/slice_io.h"
-#include "vispack/pipeline/stage_run.h"
-#include "vispack/pipeline/vdb.h"
-#include "vispack/pipeline/vdb_level.h"
-#include "vispack/pipeline/vdb_write.h"
-#include "vispack/pipeline/work_layout.h"
+#include "vispack/pipeline/core/stage_run.h"
+#include "vispack/pipeline/core/work_layout.h"
+#include "vispack/pipeline/imaging/slice_io.h"
+#include "vispack/pipeline/run/run.h"
+#include "vispack/pipeline/vdb/vdb.h"
+#include "vispack/pipeline/vdb/vdb_level.h"
+#include "vispack/pipeline/vdb/vdb_write.h"
 
 using namespace vispack;
 using namespace vispack::pipeline;

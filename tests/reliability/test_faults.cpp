@@ -25,7 +25,7 @@
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/hash.h"
 #include "vispack/format/reader.h"
-#include "vispack/pipeline/slice_io.h"
+#include "vispack/pipeline/imaging/slice_io.h"
 
 namespace fs = std::filesystem;
 using vispack::test::bin;

@@ -7,7 +7,8 @@
 // holder). Everything is defined from ONE continuous model so the truth and the slices agree by
 // construction.
 //
-// Grids and frames (docs/ARCHITECTURE.md "Slice transforms", COORD "The output frame"):
+// Grids and frames (docs/ARCHITECTURE.md "Slice transforms", docs/ARCHITECTURE.md "The output
+// frame"):
 //   CT grid:      Wct × Hct pixels of ct.spacing_mm[0] mm, slice k of the output = CT slice
 //                 first + k (written as ct/ct_<k>.png, slice_offset 0).
 //   output grid:  W = scale·Wct + 2·margin, H = scale·Hct + 2·margin pixels of

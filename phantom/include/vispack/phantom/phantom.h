@@ -11,15 +11,15 @@
 //   seg(p)      = palette[label(q(p))]            (nearest, no blending; the IDs themselves are
 //                                                  truth/seg_labels.nrrd, on the drifted grid),
 //   ct(u)       = ct_model(q(u)) + noise          with q = c + s·R(φ)(u − c_ct) + e (ct_to_rgb).
-// The output grid is the CT's frame at the colour resolution (COORD "The output frame"): (φ, e)
-// is register.output_frame (identity), s = CT pixel / colour pixel, and every T_k = (θ_k, d_k) is
-// a constant colour-camera offset against the CT plus the drift, so slice 0 is not the identity;
-// truth/transforms.json says "frame": "ct", "reference_slice": null. That file is written by the
-// phantom's own writer, independent of the pipeline's ON PURPOSE (a bug in the pipeline's writer
-// must not hide in the truth); config.json goes through the pipeline's write_config.
-// Units: x, y in output pixels (pixel_mm each), z in slices (slice_mm); angles in degrees.
-// The generator is deterministic: the same options give a byte-identical folder on the same
-// build (own RNG and distributions, no timestamps, per-slice seeds independent of scheduling).
+// The output grid is the CT's frame at the colour resolution (docs/ARCHITECTURE.md "The output
+// frame"): (φ, e) is register.output_frame (identity), s = CT pixel / colour pixel, and every T_k =
+// (θ_k, d_k) is a constant colour-camera offset against the CT plus the drift, so slice 0 is not
+// the identity; truth/transforms.json says "frame": "ct", "reference_slice": null. That file is
+// written by the phantom's own writer, independent of the pipeline's ON PURPOSE (a bug in the
+// pipeline's writer must not hide in the truth); config.json goes through the pipeline's
+// write_config. Units: x, y in output pixels (pixel_mm each), z in slices (slice_mm); angles in
+// degrees. The generator is deterministic: the same options give a byte-identical folder on the
+// same build (own RNG and distributions, no timestamps, per-slice seeds independent of scheduling).
 // Thread-safety: make_phantom may run concurrently on different output folders.
 #pragma once
 

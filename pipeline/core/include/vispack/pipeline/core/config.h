@@ -1,0 +1,166 @@
+// The pipeline configuration: one JSON file (docs/ARCHITECTURE.md "The config",
+// configs/schema.json).
+//
+// load_config() checks every key: an unknown key, a wrong type, a value out of range, a missing
+// folder or a pattern that matches no file is a ConfigError naming the key (as a JSON path such
+// as "ct.pixel_spacing_mm") or the path. Relative paths are resolved against the config file's
+// folder; every path in Config is absolute. Defaults fill every key that has a sensible default.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "vispack/pipeline/core/transforms.h"
+
+namespace vispack::pipeline {
+
+// Layout of header-less raw slices (NLM Visible Human style).
+struct RawLayout {
+  int width = 0, height = 0;
+  int channels = 1;     // 1 (grey) or 3 (RGB)
+  bool planar = false;  // true: all R, then all G, then all B ("non-interleaved")
+  int bits = 8;         // 8 or 16
+  bool big_endian = false;
+  std::uint64_t header_bytes = 0;  // bytes skipped at the start of each file
+};
+
+// One slice folder: files matched by `pattern` ({n} = the slice number), sorted by number.
+struct SliceSource {
+  std::string dir;               // absolute
+  std::string pattern;           // e.g. "rgb_{n}.png"
+  std::optional<RawLayout> raw;  // header-less raw slices when set; else read via OpenImageIO
+};
+
+struct CtSource : SliceSource {
+  std::array<double, 2> pixel_spacing_mm{1.0, 1.0};
+  double slope = 1.0;  // hu = stored * slope + intercept
+  double intercept = -1024.0;
+  int slice_offset = 0;  // CT slice (k + slice_offset) lies on output slice k
+};
+
+struct SegSource : SliceSource {
+  std::string palette;          // absolute path of palette.json
+  std::string mode = "colour";  // "colour" (colour-coded) or "id" (integer label images)
+  double tolerance = 24.0;      // max Euclidean RGB distance for nearest-colour matching
+  bool strict = false;          // an out-of-tolerance colour is an error instead of label 0
+  std::string id_map;           // mode "id": optional JSON {"<input id>": <output id>}, absolute
+};
+
+struct RegisterOptions {
+  bool enabled = true;
+  std::string method = "phase+ecc";  // "phase", "phase+ecc", "none"
+  double ecc_scale = 0.5;            // ECC refinement at this fraction of full resolution
+  int ecc_iterations = 50;
+  double jump_px = 6.0;  // an inter-slice motion above this is flagged as a jump
+  // With CT, the output grid is the CT's frame at the colour resolution (docs/ARCHITECTURE.md
+  // "The output frame"): CT pixel u lands on output q = c + s·R(rotation_deg)(u − c_ct) + d,
+  // s = ct.pixel_spacing_mm[0] / spacing_mm[0]. This is that definition's rotation (degrees)
+  // and shift (output pixels); default identity: axis-aligned, centre on centre.
+  Rigid output_frame;
+  // What ties the stack to a drift-free frame: "ct" (every colour slice aligned to its CT
+  // slice), "fiducials" (tubes in the gel), "none" (slice-to-slice only: absolute drift is not
+  // observable, the report says so) or "auto" (ct when configured, else fiducials when found,
+  // else none).
+  std::string anchor = "auto";
+  std::string overrides;  // absolute path of the per-slice override file; empty = none
+};
+
+struct MaskOptions {
+  double hu_threshold = -400.0;  // CT voxels above this are body (air/gel are below)
+  int opening_px = 1;            // morphological opening radius on the colour grid
+  bool refine_gel = true;        // refine the edge by distance to the gel colour
+  std::optional<std::array<int, 3>> gel_colour;  // RGB of the gel; estimated when absent
+  double gel_distance = 40.0;  // colour distance under which a boundary pixel counts as gel
+};
+
+struct PackOptions {
+  int brick_edge = 64;  // power of two, 8..256
+  int zstd_level = 3;   // 0 = raw bricks, 1..22
+  int downsample = 1;   // integer factor applied to x and y of the output grid
+  int threads = 0;      // 0 = all cores
+  // What the packed file keeps outside the body (voxels whose work/mask/mask_NNNN.png is 0),
+  // config key pack.keep_outside_body: "none" (default) stores colour (r, g, b) = 0 and CT =
+  // −1024 HU (air) there, so that bricks of gel are uniform and cost nothing; "colour", "ct" or
+  // "all" keep that channel as registered / resampled. Alpha and labels are never changed.
+  bool keep_colour_outside_body = false;
+  bool keep_ct_outside_body = false;
+  // pack.crop_margin_px: when set (>= 0), x and y of the packed volume are cropped to the union
+  // over the stack of the body masks' bounding boxes plus this margin in output-grid pixels
+  // (before downsampling), clamped to the frame; origin_mm moves with the crop. Unset (default):
+  // the whole registered frame is packed. z is never cropped.
+  std::optional<int> crop_margin_px;
+};
+
+// What the stages write into the work folder besides what a person inspects (masks, overlays,
+// label slices, transforms, QC), config section "work" (issue 12). The later stages never read
+// the full-size registered colour or resampled CT back: they resample them from the input slices
+// and transforms.json (work_layout.h), so these switches change only what is on disk.
+struct WorkOptions {
+  bool write_registered = false;  // <work>/register/registered/rgb_NNNN.png (full size)
+  bool write_ct = false;          // <work>/mask/ct_NNNN.png (16-bit HU + 32768, full size)
+  int overlay_max_px = 1024;      // <work>/mask/overlay_NNNN.png: longer side at most this
+                                  // (downsampled by block mean); 0 = full size
+};
+
+// Config section "vdb" (the OpenVDB export, vdb.h). The export holds whole grids in memory, so
+// it exports one level of the packed file's pyramid: `level` when set, else the finest level
+// whose estimated memory fits `max_memory_mb` (vdb_level.h). A set `level` whose estimate
+// exceeds the budget is a ConfigError, not an export that might be killed.
+struct VdbOptions {
+  bool enabled = true;
+  std::optional<int> level;  // vdb.level: 0 = the packed file's level 0; unset / "auto" = auto
+  // vdb.max_memory_mb: budget for the grids (MiB). 8192 by default: a fixed number, so the level
+  // chosen (and the file written) does not depend on the machine; it leaves 16 GiB of a 24 GiB
+  // machine to everything else and chooses level 1 (~3 GB) for the NLM male (level 0 ~25 GB).
+  std::int64_t max_memory_mb = 8192;
+};
+
+struct Config {
+  std::string path;  // the config file (absolute)
+  std::string name;
+  std::string work_dir;                             // absolute
+  std::string output;                               // packed file, absolute
+  std::string vdb_output;                           // absolute; empty = no export
+  std::array<double, 3> spacing_mm{1.0, 1.0, 1.0};  // output grid (x, y, z) before downsampling
+  SliceSource rgb;
+  std::optional<CtSource> ct;
+  std::optional<SegSource> seg;
+  RegisterOptions registration;
+  MaskOptions mask;
+  PackOptions pack;
+  WorkOptions work;
+  VdbOptions vdb;
+  nlohmann::json raw_json;  // the file as read, for hashing sections into reports
+};
+
+// Loads and validates a config file. Throws ConfigError (bad content) or IoError (unreadable).
+Config load_config(const std::string& path);
+
+// The config as JSON in the loader's schema: every key written with its value (defaults
+// included), paths relative to `base_dir` (default: the folder of config.path; absolute paths
+// are kept when no relative form exists). load_config of the written file gives back the same
+// Config (raw_json aside). Pure; thread-safe.
+nlohmann::json config_to_json(const Config& config);
+nlohmann::json config_to_json(const Config& config, const std::string& base_dir);
+
+// Writes config_to_json(config, folder of `path`) to `path` atomically (2-space indented JSON).
+// Throws IoError when the file cannot be written.
+void write_config(const std::string& path, const Config& config);
+
+// Every key path the loader accepts ("ct.raw.width", ...), for documentation and the schema test.
+// Keys starting with '_' are comments, accepted anywhere and ignored; JSON comments (// and /* */)
+// are stripped by the parser.
+std::vector<std::string> config_key_paths();
+
+// Hash (16 hex digits) of the named parts of the config as written: top-level sections ("mask")
+// or single keys inside them ("mask.hu_threshold"), absent ones hashing as null. Keys starting
+// with '_' (comments) do not count. Used by stage manifests to decide whether outputs are stale:
+// a stage lists exactly what it reads, so touching another key does not rerun it.
+std::string config_section_hash(const Config& config, const std::vector<std::string>& sections);
+
+}  // namespace vispack::pipeline

@@ -1,0 +1,61 @@
+// The work folder: where each stage's intermediates live (docs/ARCHITECTURE.md "Work folder
+// layout"), the stack's slice list and transforms. Reading the intermediates back (pack, vdb):
+// imaging/intermediates.h.
+// All functions are thread-safe (they only read the config and the file system).
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "vispack/pipeline/core/config.h"
+#include "vispack/pipeline/core/fingerprint.h"
+#include "vispack/pipeline/core/slice_list.h"
+#include "vispack/pipeline/core/transforms.h"
+
+namespace vispack::pipeline {
+
+// Paths in the work folder (all absolute; no folder is created).
+std::string stage_dir(const Config& config, const std::string& stage);  // <work>/<stage>
+// <work>/<stage>/<prefix>_NNNN.<ext>, NNNN = stack index k (zero-padded to 4 digits, more if
+// needed), e.g. slice_output_path(config, "mask", "mask", 7) = <work>/mask/mask_0007.png.
+std::string slice_output_path(const Config& config, const std::string& stage,
+                              const std::string& prefix, int index, const std::string& ext = "png");
+// <work>/register/transforms.json
+std::string transforms_path(const Config& config);
+// <work>/register/registered/rgb_NNNN.png (the registered colour slice k; written only with
+// work.write_registered, for inspection: no stage reads it back)
+std::string registered_rgb_path(const Config& config, int index);
+// <work>/mask/mask_NNNN.png (0/255), <work>/mask/ct_NNNN.png (16-bit, HU + 32768; written only
+// with work.write_ct, for inspection),
+// <work>/labels/labels_NNNN.png (16-bit IDs)
+std::string mask_path(const Config& config, int index);
+std::string mask_ct_path(const Config& config, int index);
+std::string labels_path(const Config& config, int index);
+
+// The colour stack: list_slices(config.rgb). Its order defines the stack index k (= output z).
+std::vector<SliceFile> stack_slices(const Config& config);
+
+// The register stage's transforms for a stack of `slice_count` slices: reads
+// <work>/register/transforms.json. Throws InputError naming the file when it is missing ("run
+// vispack-register first") or covers another number of slices ("rerun vispack-register").
+StackTransforms read_stack_transforms(const Config& config, int slice_count);
+
+// What the later stages need to rebuild a slice's registered colour and resampled CT from the
+// inputs (issue 12: those full-size images are not written by default, config "work").
+struct StackInputs {
+  std::vector<SliceFile> rgb;  // stack_slices(config): index k = output slice k
+  std::vector<SliceFile> ct;   // list_slices(*config.ct), empty without CT
+  StackTransforms transforms;  // <work>/register/transforms.json, one per colour slice
+  cv::Size size() const { return {transforms.width, transforms.height}; }
+};
+// Lists the slice folders and reads transforms.json (read_stack_transforms: same errors).
+StackInputs read_stack_inputs(const Config& config);
+
+// A fingerprint of everything a whole-volume stage reads (pack, vdb): transforms.json, then per
+// slice the input colour slice, the mask, the CT slice (when CT is configured) and the labels
+// (when segmentation is configured). Callers add their own inputs and options to it.
+Fingerprint intermediates_fingerprint(const Config& config, const StackInputs& inputs);
+
+}  // namespace vispack::pipeline

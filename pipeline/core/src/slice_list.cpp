@@ -1,0 +1,69 @@
+// list_slices (slice_list.h): a slice folder's files by number.
+#include <algorithm>
+#include <filesystem>
+#include <system_error>
+#include <vector>
+
+#include "vispack/common/error.h"
+#include "vispack/pipeline/core/slice_list.h"
+
+namespace vispack::pipeline {
+
+namespace fs = std::filesystem;
+
+std::vector<SliceFile> list_slices(const SliceSource& source) {
+  const std::string& pattern = source.pattern;
+  const auto token = pattern.find("{n}");
+  if (token == std::string::npos || pattern.find("{n}", token + 1) != std::string::npos) {
+    throw ConfigError(
+        cat("pattern \"", pattern, "\" for folder ", source.dir, " must contain {n} exactly once"));
+  }
+  const std::string prefix = pattern.substr(0, token);
+  const std::string suffix = pattern.substr(token + 3);
+  std::error_code ec;
+  if (!fs::is_directory(source.dir, ec)) {
+    throw ConfigError(
+        cat("slice folder ", source.dir, " does not exist (pattern \"", pattern, "\")"));
+  }
+  std::vector<SliceFile> files;
+  fs::directory_iterator it(source.dir, ec);
+  if (ec) {
+    throw ConfigError(cat("cannot list slice folder ", source.dir, ": ", ec.message()));
+  }
+  for (; it != fs::directory_iterator(); it.increment(ec)) {
+    if (ec) throw ConfigError(cat("cannot list slice folder ", source.dir, ": ", ec.message()));
+    const std::string name = it->path().filename().string();
+    if (name.size() <= prefix.size() + suffix.size()) continue;
+    if (name.compare(0, prefix.size(), prefix) != 0) continue;
+    if (name.compare(name.size() - suffix.size(), suffix.size(), suffix) != 0) continue;
+    const std::string digits =
+        name.substr(prefix.size(), name.size() - prefix.size() - suffix.size());
+    if (!std::all_of(digits.begin(), digits.end(), [](char c) { return c >= '0' && c <= '9'; })) {
+      continue;
+    }
+    const auto first = digits.find_first_not_of('0');
+    const std::string significant = first == std::string::npos ? "0" : digits.substr(first);
+    if (significant.size() > 9) {
+      throw ConfigError(cat(source.dir, "/", name, ": slice number ", digits, " is too large"));
+    }
+    std::error_code type_ec;
+    if (it->is_directory(type_ec)) continue;
+    files.push_back({std::stoi(significant), (fs::path(source.dir) / name).string()});
+  }
+  if (files.empty()) {
+    throw ConfigError(cat("no file in ", source.dir, " matches the pattern \"", pattern, "\""));
+  }
+  std::sort(files.begin(), files.end(), [](const SliceFile& a, const SliceFile& b) {
+    return a.number != b.number ? a.number < b.number : a.path < b.path;
+  });
+  for (std::size_t i = 1; i < files.size(); ++i) {
+    if (files[i].number == files[i - 1].number) {
+      throw ConfigError(cat("slice number ", files[i].number, " appears twice in ", source.dir,
+                            ": ", fs::path(files[i - 1].path).filename().string(), " and ",
+                            fs::path(files[i].path).filename().string()));
+    }
+  }
+  return files;
+}
+
+}  // namespace vispack::pipeline

@@ -1,0 +1,133 @@
+#include "vispack/pipeline/core/work_layout.h"
+
+#include <cstdio>
+#include <filesystem>
+#include <set>
+
+#include <opencv2/imgproc.hpp>
+
+#include "vispack/common/error.h"
+
+namespace vispack::pipeline {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+std::string padded(int index) {
+  char buffer[32];
+  std::snprintf(buffer, sizeof buffer, "%04d", index);
+  return buffer;
+}
+
+}  // namespace
+
+std::string stage_dir(const Config& config, const std::string& stage) {
+  return config.work_dir + "/" + stage;
+}
+
+std::string slice_output_path(const Config& config, const std::string& stage,
+                              const std::string& prefix, int index, const std::string& ext) {
+  return stage_dir(config, stage) + "/" + prefix + "_" + padded(index) + "." + ext;
+}
+
+std::string transforms_path(const Config& config) {
+  return stage_dir(config, "register") + "/transforms.json";
+}
+
+std::string registered_rgb_path(const Config& config, int index) {
+  return stage_dir(config, "register") + "/registered/rgb_" + padded(index) + ".png";
+}
+
+std::string mask_path(const Config& config, int index) {
+  return slice_output_path(config, "mask", "mask", index);
+}
+
+std::string mask_ct_path(const Config& config, int index) {
+  return slice_output_path(config, "mask", "ct", index);
+}
+
+std::string labels_path(const Config& config, int index) {
+  return slice_output_path(config, "labels", "labels", index);
+}
+
+std::vector<SliceFile> stack_slices(const Config& config) {
+  std::vector<SliceFile> files = list_slices(config.rgb);
+  if (config.ct) {
+    // CT slice k + slice_offset lies on colour slice k: matched by position, so a CT slice
+    // missing inside the CT stack would shift every later one (issue 7). The step is the
+    // smallest difference between consecutive CT numbers (1 for ct_0000, ct_0001, ...).
+    const std::vector<SliceFile> ct = list_slices(*config.ct);
+    int step = 0;
+    for (std::size_t i = 1; i < ct.size(); ++i) {
+      const int d = ct[i].number - ct[i - 1].number;
+      if (step == 0 || d < step) step = d;
+    }
+    for (std::size_t i = 1; i < ct.size(); ++i) {
+      if (ct[i].number - ct[i - 1].number > step) {
+        throw InputError(cat(config.ct->dir, ": CT slice ", ct[i - 1].number + step,
+                             " is missing (", fs::path(ct[i - 1].path).filename().string(),
+                             " is followed by ", fs::path(ct[i].path).filename().string(),
+                             "); CT slices are matched to colour slices by position"));
+      }
+    }
+  }
+  return files;
+}
+
+StackTransforms read_stack_transforms(const Config& config, int slice_count) {
+  const std::string path = transforms_path(config);
+  if (!fs::exists(path)) throw InputError(cat(path, ": missing; run vispack-register first"));
+  StackTransforms transforms = read_transforms(path);
+  if (int(transforms.slices.size()) != slice_count) {
+    // Name the slice at fault: one that transforms.json lists but the folder lacks (a slice
+    // deleted since register ran), else one the folder has but transforms.json lacks (added).
+    std::set<std::string> now;
+    for (const auto& f : stack_slices(config))
+      now.insert(fs::path(f.path).filename().string());
+    std::set<std::string> then;
+    for (const auto& s : transforms.slices) {
+      then.insert(s.file);
+      if (!s.file.empty() && !now.count(s.file))
+        throw InputError(cat((fs::path(config.rgb.dir) / s.file).string(),
+                             ": slice is gone since vispack-register ran (", path, " has ",
+                             transforms.slices.size(), " slices, the stack has ", slice_count,
+                             "); rerun vispack-register"));
+    }
+    for (const auto& name : now)
+      if (!then.count(name))
+        throw InputError(cat((fs::path(config.rgb.dir) / name).string(),
+                             ": slice is new since vispack-register ran (", path, " has ",
+                             transforms.slices.size(), " slices, the stack has ", slice_count,
+                             "); rerun vispack-register"));
+    throw InputError(cat(path, ": has ", transforms.slices.size(), " slices but the stack has ",
+                         slice_count, "; rerun vispack-register"));
+  }
+  return transforms;
+}
+
+StackInputs read_stack_inputs(const Config& config) {
+  StackInputs inputs;
+  inputs.rgb = stack_slices(config);
+  if (config.ct) inputs.ct = list_slices(*config.ct);
+  inputs.transforms = read_stack_transforms(config, int(inputs.rgb.size()));
+  return inputs;
+}
+
+Fingerprint intermediates_fingerprint(const Config& config, const StackInputs& inputs) {
+  Fingerprint fp;
+  fp.text("intermediates-v2");          // v2: colour and CT rebuilt from the inputs (issue 12)
+  fp.content(transforms_path(config));  // by its bytes: shards may rewrite it (fingerprint.h)
+  for (const auto& f : inputs.rgb)
+    fp.file(f.path);
+  for (const auto& f : inputs.ct)
+    fp.file(f.path);
+  const int n = int(inputs.rgb.size());
+  for (int k = 0; k < n; ++k) {
+    fp.file(mask_path(config, k));
+    if (config.seg) fp.file(labels_path(config, k));
+  }
+  return fp;
+}
+
+}  // namespace vispack::pipeline

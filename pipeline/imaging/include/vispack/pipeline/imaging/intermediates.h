@@ -1,0 +1,82 @@
+// The one way to read a stack slice's intermediates back (pack, vdb, the one-pass stream): the
+// registered colour and the resampled CT rebuilt from the inputs, the mask and labels read from
+// the work folder (core/work_layout.h names the paths), what lies outside the body cleared.
+// All functions are thread-safe (they only read the config and the file system).
+#pragma once
+
+#include <cstdint>
+#include <string>
+
+#include <opencv2/core.hpp>
+
+#include "vispack/pipeline/core/config.h"
+#include "vispack/pipeline/core/work_layout.h"
+
+namespace vispack::pipeline {
+
+// The registered colour slice k (CV_8UC3, RGB) on the output grid: input slice k (16-bit scaled
+// to 8, grey expanded to RGB) resampled with its transform (bilinear, border replicated; the
+// convention of docs/ARCHITECTURE.md "Slice transforms"). The one implementation: register
+// writes it when work.write_registered, mask, pack and vdb call it. Deterministic: the same
+// inputs give the same bytes. Throws InputError naming the slice when its size differs.
+cv::Mat registered_colour(const Config& config, const StackInputs& inputs, int index);
+
+// CT slice k + ct.slice_offset in HU (CV_32F, CT resolution) and the map from output pixels to
+// its pixels (transforms.h output_to_ct with transforms.json's ct_to_rgb, else the config's
+// definition). Without CT, or when the CT stack has no slice for k, `hu` is empty.
+struct CtSlice {
+  cv::Mat hu;
+  cv::Matx23d out_to_ct{1, 0, 0, 0, 1, 0};
+  std::string path;  // the CT file; empty when none
+};
+CtSlice read_ct_slice(const Config& config, const StackInputs& inputs, int index);
+
+// The CT of output slice k on the output grid as work/mask/ct_NNNN.png stores it (CV_16UC1,
+// HU + 32768; mask.h resample_ct, encode_hu16): the one implementation the mask stage writes
+// (work.write_ct) and pack and vdb read. A slice beyond the CT stack is −1024 HU (air)
+// everywhere. `ct` (optional) is the slice already read.
+cv::Mat resampled_ct16(const Config& config, const StackInputs& inputs, int index,
+                       const CtSlice* ct = nullptr);
+
+// One output slice's intermediates, as the mask and labels stages wrote them, on the output grid,
+// with what lies outside the body cleared as the config asks (pack.keep_outside_body).
+struct Intermediates {
+  cv::Mat rgb;              // CV_8UC3, the registered colour slice; (0, 0, 0) where mask == 0
+                            // unless config.pack.keep_colour_outside_body
+  cv::Mat mask;             // CV_8UC1, 0/255 body mask
+  cv::Mat ct;               // CV_16UC1, HU + 32768 (empty without CT); kOutsideBodyCt16 (−1024
+                            // HU, air) where mask == 0 unless config.pack.keep_ct_outside_body
+  cv::Mat labels;           // CV_16UC1, label IDs (empty without segmentation)
+  std::uint64_t bytes = 0;  // decoded bytes of the slices above (for throughput reports)
+};
+
+// The CT value stored outside the body when it is cleared: −1024 HU (air) as HU + 32768.
+constexpr std::uint16_t kOutsideBodyCt16 = 32768 - 1024;
+
+// The intermediates of stack slice `index` on the output grid (inputs.size()): mask and labels
+// read from the work folder, each checked for size and type; colour and CT rebuilt from the
+// inputs (registered_colour, resampled_ct16), whether or not the work folder holds copies.
+// CT only when the config has CT and labels only when it has segmentation. Outside the
+// body mask (mask == 0) colour becomes 0 and CT −1024 HU unless config.pack says to keep them
+// (docs/ARCHITECTURE.md "What the packed file stores"): this is the one place where that
+// happens, so the packed file and the OpenVDB export read the same values. Throws InputError
+// naming the file when one is missing ("run the earlier stages first") or has the wrong size or
+// pixel type.
+Intermediates read_intermediates(const Config& config, const StackInputs& inputs, int index);
+
+// An intermediate image of the work folder (a mask or label PNG), checked: throws InputError
+// naming `path` when it is missing ("run the earlier stages first") or is not of `type`
+// (CV_8UC1, CV_8UC3 or CV_16UC1) and `size`.
+cv::Mat read_checked(const std::string& path, int type, cv::Size size);
+
+// The clearing step of read_intermediates, for intermediates built in memory (the streaming
+// vispack-run, stream.h): colour 0 and CT −1024 HU where in.mask == 0, as config.pack asks.
+// `in` must hold rgb and mask (and ct when the config has CT) of one size.
+void clear_outside_body(const Config& config, Intermediates& in);
+
+// The union over stack slices [0, slice_count) of the bounding boxes of the body masks
+// (<work>/mask/mask_NNNN.png, non-zero pixels), in output-grid pixels; an empty rect when no
+// slice has body. Throws InputError as read_intermediates does for a missing or wrong mask.
+cv::Rect body_bounds(const Config& config, int slice_count, cv::Size size);
+
+}  // namespace vispack::pipeline

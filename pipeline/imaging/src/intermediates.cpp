@@ -1,0 +1,128 @@
+// The readers of work_layout.h: an intermediate checked against its expected type and size,
+// the colour and CT rebuilt from the inputs, a slice's intermediates, the body bounds. Apart from
+// the paths and stack listing of work_layout.cpp, so that a tool that reads no image
+// (vispack-merge) links no image library.
+#include <filesystem>
+
+#include <opencv2/imgproc.hpp>
+
+#include "vispack/common/error.h"
+#include "vispack/pipeline/core/output_frame.h"
+#include "vispack/pipeline/core/work_layout.h"
+#include "vispack/pipeline/imaging/ct_resample.h"
+#include "vispack/pipeline/imaging/intermediates.h"
+#include "vispack/pipeline/imaging/slice_io.h"
+
+namespace vispack::pipeline {
+
+namespace fs = std::filesystem;
+
+cv::Mat read_checked(const std::string& path, int type, cv::Size size) {
+  if (!fs::exists(path))
+    throw InputError(cat(path, ": missing intermediate (run the earlier stages first)"));
+  cv::Mat m = read_slice(path);
+  if (m.type() != type)
+    throw InputError(cat(path, ": unexpected pixel type (expected ",
+                         type == CV_8UC3   ? "8-bit RGB"
+                         : type == CV_8UC1 ? "8-bit grey"
+                                           : "16-bit grey",
+                         ")"));
+  if (m.size() != size)
+    throw InputError(
+        cat(path, ": is ", m.cols, "x", m.rows, ", expected ", size.width, "x", size.height));
+  return m;
+}
+
+cv::Mat registered_colour(const Config& config, const StackInputs& inputs, int index) {
+  const SliceFile& file = inputs.rgb.at(std::size_t(index));
+  cv::Mat observed = read_slice(file.path, config.rgb.raw);
+  if (observed.depth() == CV_16U) observed.convertTo(observed, CV_8U, 255.0 / 65535.0);
+  if (observed.channels() == 1) cv::cvtColor(observed, observed, cv::COLOR_GRAY2RGB);
+  if (observed.type() != CV_8UC3)
+    throw InputError(cat(file.path, ": colour slice must be 8- or 16-bit grey or RGB"));
+  const cv::Size size = inputs.size();
+  if (observed.size() != size)
+    throw InputError(cat(file.path, ": slice is ", observed.cols, "x", observed.rows,
+                         ", the stack is ", size.width, "x", size.height));
+  const SliceTransform& t = inputs.transforms.slices.at(std::size_t(index));
+  cv::Mat registered;
+  cv::warpAffine(observed, registered, cv::Mat(rigid_matrix(t.rigid, inputs.transforms.centre())),
+                 size, cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_REPLICATE);
+  return registered;
+}
+
+CtSlice read_ct_slice(const Config& config, const StackInputs& inputs, int index) {
+  CtSlice ct;
+  if (!config.ct) return ct;
+  const int ct_k = index + config.ct->slice_offset;
+  if (ct_k < 0 || ct_k >= int(inputs.ct.size())) return ct;
+  ct.path = inputs.ct[std::size_t(ct_k)].path;
+  cv::Mat raw = read_slice(ct.path, config.ct->raw);
+  if (raw.channels() != 1) throw InputError(cat(ct.path, ": CT slice must be single-channel"));
+  raw.convertTo(ct.hu, CV_32F, config.ct->slope, config.ct->intercept);
+  const Similarity c =
+      inputs.transforms.ct_to_rgb ? *inputs.transforms.ct_to_rgb : defined_ct_to_rgb(config);
+  ct.out_to_ct = output_to_ct(c, inputs.transforms.centre(), image_centre(ct.hu.size()));
+  return ct;
+}
+
+cv::Mat resampled_ct16(const Config& config, const StackInputs& inputs, int index,
+                       const CtSlice* ct) {
+  CtSlice own;
+  if (!ct) {
+    own = read_ct_slice(config, inputs, index);
+    ct = &own;
+  }
+  if (ct->hu.empty()) return cv::Mat(inputs.size(), CV_16UC1, cv::Scalar(kOutsideBodyCt16));
+  return encode_hu16(resample_ct(ct->hu, ct->out_to_ct, inputs.size()));
+}
+
+Intermediates read_intermediates(const Config& config, const StackInputs& inputs, int index) {
+  const cv::Size size = inputs.size();
+  Intermediates in;
+  in.rgb = registered_colour(config, inputs, index);
+  in.mask = read_checked(mask_path(config, index), CV_8UC1, size);
+  in.bytes = in.rgb.total() * 3 + in.mask.total();
+  if (config.ct) {
+    in.ct = resampled_ct16(config, inputs, index);
+    in.bytes += in.ct.total() * 2;
+  }
+  if (config.seg) {
+    in.labels = read_checked(labels_path(config, index), CV_16UC1, size);
+    in.bytes += in.labels.total() * 2;
+  }
+  clear_outside_body(config, in);
+  return in;
+}
+
+void clear_outside_body(const Config& config, Intermediates& in) {
+  const cv::Size size = in.mask.size();
+  // Issue 12: store only what a scene needs. Gel outside the body varies from voxel to voxel
+  // (texture, noise), so not one brick of it would be uniform; cleared, it costs nothing.
+  const bool clear_rgb = !config.pack.keep_colour_outside_body;
+  const bool clear_ct = config.ct && !config.pack.keep_ct_outside_body;
+  if (clear_rgb || clear_ct) {
+    for (int y = 0; y < size.height; ++y) {
+      const std::uint8_t* m = in.mask.ptr<std::uint8_t>(y);
+      cv::Vec3b* c = in.rgb.ptr<cv::Vec3b>(y);
+      std::uint16_t* h = clear_ct ? in.ct.ptr<std::uint16_t>(y) : nullptr;
+      for (int x = 0; x < size.width; ++x) {
+        if (m[x]) continue;
+        if (clear_rgb) c[x] = cv::Vec3b(0, 0, 0);
+        if (h) h[x] = kOutsideBodyCt16;
+      }
+    }
+  }
+}
+
+cv::Rect body_bounds(const Config& config, int slice_count, cv::Size size) {
+  cv::Rect bounds;
+  for (int k = 0; k < slice_count; ++k) {
+    const cv::Rect r = cv::boundingRect(read_checked(mask_path(config, k), CV_8UC1, size));
+    if (r.area() == 0) continue;
+    bounds = bounds.area() == 0 ? r : (bounds | r);
+  }
+  return bounds;
+}
+
+}  // namespace vispack::pipeline

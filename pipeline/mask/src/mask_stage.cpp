@@ -1,0 +1,159 @@
+// The vispack-mask stage driver: per-slice masks, overlays and resampled CT. See mask.h.
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <mutex>
+
+#include <opencv2/core/utility.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "vispack/common/error.h"
+#include "vispack/common/parallel.h"
+#include "vispack/pipeline/core/transforms.h"
+#include "vispack/pipeline/core/work_layout.h"
+#include "vispack/pipeline/imaging/intermediates.h"
+#include "vispack/pipeline/imaging/opencv_threads.h"
+#include "vispack/pipeline/imaging/slice_io.h"
+#include "vispack/pipeline/mask/mask.h"
+#include "vispack/pipeline/mask/mask_stage.h"
+
+namespace vispack::pipeline {
+namespace {
+
+namespace fs = std::filesystem;
+
+// The overlay a person inspects, its longer side brought down to `max_px` (block mean; the
+// outline stays visible as a yellow tint); 0 = full size.
+cv::Mat fit_overlay(const cv::Mat& overlay, int max_px) {
+  const int longer = std::max(overlay.cols, overlay.rows);
+  if (max_px <= 0 || longer <= max_px) return overlay;
+  const double s = double(max_px) / longer;
+  cv::Mat small;
+  cv::resize(overlay, small,
+             cv::Size(std::max(1, int(std::lround(overlay.cols * s))),
+                      std::max(1, int(std::lround(overlay.rows * s)))),
+             0, 0, cv::INTER_AREA);
+  return small;
+}
+
+}  // namespace
+
+MaskStageJob::MaskStageJob(const Config& config, const StackInputs& inputs,
+                           const StageOptions& options)
+    : config_(config),
+      inputs_(inputs),
+      run_(config, "mask", int(inputs.rgb.size()), options,
+           {"mask", "ct", "rgb", "work.write_ct", "work.overlay_max_px"},
+           {transforms_path(config)}) {
+  coverage_.assign(static_cast<std::size_t>(run_.range().size()), -1.0);
+}
+
+std::string MaskStageJob::input_fingerprint(int k) const {
+  // The registered colour is rebuilt from input slice k and transforms.json (a stage input:
+  // a new transforms.json reruns every slice).
+  const int ct_k = config_.ct ? k + config_.ct->slice_offset : -1;
+  const bool has_ct = config_.ct && ct_k >= 0 && ct_k < int(inputs_.ct.size());
+  Fingerprint fp;
+  fp.text("mask-v2").file(inputs_.rgb[std::size_t(k)].path);  // v2: colour from the input slice
+  if (has_ct) fp.file(inputs_.ct[std::size_t(ct_k)].path);
+  return fp.str();
+}
+
+std::vector<std::string> MaskStageJob::outputs(int k) const {
+  std::vector<std::string> outs = {mask_path(config_, k), run_.slice_path("overlay", k)};
+  const int ct_k = config_.ct ? k + config_.ct->slice_offset : -1;
+  const bool has_ct = config_.ct && ct_k >= 0 && ct_k < int(inputs_.ct.size());
+  if (has_ct && config_.work.write_ct) outs.push_back(mask_ct_path(config_, k));
+  return outs;
+}
+
+bool MaskStageJob::up_to_date(int k) const {
+  return run_.up_to_date(k, input_fingerprint(k), outputs(k));
+}
+
+cv::Mat MaskStageJob::compute(int k, const cv::Mat& rgb, const CtSlice& ct, cv::Mat* ct16) {
+  const std::string in = input_fingerprint(k);
+  const std::vector<std::string> outs = outputs(k);
+  const bool has_ct = !ct.hu.empty();
+  const bool write_ct = outs.size() > 2;
+  // A CT copy from an earlier run with work.write_ct must not outlive the slice it shows.
+  if (!write_ct) {
+    std::error_code ec;
+    fs::remove(mask_ct_path(config_, k), ec);
+  }
+  std::uint64_t bytes = rgb.total() * rgb.elemSize();
+  const cv::Mat& ct_hu = ct.hu;
+  if (has_ct) {
+    bytes += ct_hu.total() * 2;
+  } else {
+    ++colour_only_;
+  }
+  const auto t0 = std::chrono::steady_clock::now();
+  // A black (lost) colour slice has no colour to refine with: its mask is the CT's alone.
+  MaskOptions mask_options = config_.mask;
+  if (inputs_.transforms.slices[std::size_t(k)].black) mask_options.refine_gel = false;
+  MaskSlice m = compute_mask(rgb, has_ct ? &ct_hu : nullptr, ct.out_to_ct, mask_options);
+  compute_ns_ +=
+      std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - t0)
+          .count();
+  write_work_image(outs[0], m.mask);
+  write_work_image(outs[1],
+                   fit_overlay(draw_mask_overlay(rgb, m.mask), config_.work.overlay_max_px));
+  if (write_ct || (ct16 && config_.ct)) {
+    cv::Mat resampled = resampled_ct16(config_, inputs_, k, &ct);
+    if (write_ct) write_work_image(outs[2], resampled);
+    if (ct16) *ct16 = resampled;
+  }
+  coverage_[std::size_t(k - run_.range().first)] = m.coverage;
+  {
+    std::lock_guard<std::mutex> lock(gel_mutex_);
+    gel_sum_ += cv::Vec3d(m.gel[0], m.gel[1], m.gel[2]);
+    ++gel_count_;
+  }
+  run_.done(k, in, outs, bytes);
+  return m.mask;
+}
+
+StageResult MaskStageJob::finish() {
+  const SliceRange range = run_.range();
+  nlohmann::json per = nlohmann::json::object();
+  double sum = 0;
+  int counted = 0;
+  for (int i = 0; i < range.size(); ++i) {
+    if (coverage_[std::size_t(i)] < 0) continue;
+    per[std::to_string(range.first + i)] = coverage_[std::size_t(i)];
+    sum += coverage_[std::size_t(i)], ++counted;
+  }
+  run_.set_quality("coverage", per);
+  run_.set_quality("mean_coverage", counted ? sum / counted : 0.0);
+  run_.set_quality("colour_only_slices", colour_only_.load());
+  if (gel_count_ > 0)
+    run_.set_quality("mean_gel_colour", {gel_sum_[0] / gel_count_, gel_sum_[1] / gel_count_,
+                                         gel_sum_[2] / gel_count_});
+  if (counted > 0) run_.set_report("mask_ms_per_slice", compute_ns_.load() / 1e6 / counted);
+  return run_.finish();
+}
+
+StageResult run_mask_stage(const Config& config, const StageOptions& options) {
+  const StackInputs inputs = read_stack_inputs(config);
+  MaskStageJob job(config, inputs, options);
+  StageRun& run = job.run();
+  // The stage spreads slices over run.threads() workers: OpenCV's own pool stays off (with
+  // --threads 1 too, so that one thread means one core, as a SLURM task of one CPU expects).
+  ScopedOpenCvThreads opencv_threads(1);
+  const SliceRange range = run.range();
+  parallel_for(range.size(), run.threads(), [&](std::int64_t i) {
+    const int k = range.first + int(i);
+    if (job.up_to_date(k)) {
+      job.skip(k);
+      return;
+    }
+    const cv::Mat rgb = registered_colour(config, inputs, k);
+    job.compute(k, rgb, read_ct_slice(config, inputs, k));
+  });
+  return job.finish();
+}
+
+}  // namespace vispack::pipeline

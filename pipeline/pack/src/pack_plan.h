@@ -1,0 +1,66 @@
+// The plan every pack derives from the config and the work folder before it reads a slice (a
+// whole-stack pack, a shard and a merge alike: pipeline/pack.h), and the report they share.
+// Private to pipeline/pack. It reads no image itself: the body bounds of a cropped pack come from
+// the caller (the masks for a pack, the slab files' headers for a merge), so a merge links no
+// image library (vispack-merge starts in a fraction of vispack-pack's time).
+// Thread-safety: plain values and free functions; no shared state.
+#pragma once
+
+#include <functional>
+#include <set>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+
+#include "vispack/format/writer.h"
+#include "vispack/pipeline/core/config.h"
+#include "vispack/pipeline/core/palette.h"
+#include "vispack/pipeline/core/stage_run.h"
+#include "vispack/pipeline/core/work_layout.h"
+
+namespace vispack::pipeline::detail {
+
+// Everything a pack (whole, shard or merge) derives from the config and the work folder before
+// reading any slice: the writer options with the metadata, and the input fingerprint.
+struct PackPlan {
+  int n = 0;
+  int f = 1;
+  StackInputs inputs;  // the input slice lists and transforms.json (work_layout.h)
+  cv::Size full, out_size;
+  cv::Rect box;          // the part of the full-resolution output grid packed (pack.crop_margin_px)
+  cv::Rect body;         // with pack.crop_margin_px: the union of the body masks' bounding boxes
+                         // (full-resolution pixels; empty without a crop or without body)
+  bool cropped = false;  // box is smaller than the grid
+  nlohmann::json crop_meta;  // metadata "crop" (null without a crop)
+  bool has_ct = false, has_labels = false;
+  format::WriterOptions wo;
+  std::vector<PaletteEntry> palette;
+  std::vector<int> missing, black, duplicated;
+  std::string input;  // the whole pack's input fingerprint (a merge records the same)
+};
+
+// The union of the body masks' bounding boxes over the stack's `slice_count` slices of the
+// full-resolution frame `full` (empty when no slice has body); asked only when
+// pack.crop_margin_px is set.
+using BodyBoundsSource = std::function<cv::Rect(int slice_count, cv::Size full)>;
+
+// The whole pack's input fingerprint: every intermediate it reads as the work folder holds them
+// now, the palette and the output path.
+std::string pack_input_fingerprint(const Config& config, const StackInputs& inputs);
+
+// Lists the stack and reads transforms.json, the palette (or the labels report's IDs) and the
+// overrides; builds the writer options and metadata. Throws InputError / ConfigError naming the
+// file at fault.
+PackPlan plan_pack(const Config& config, const StageOptions& options,
+                   const BodyBoundsSource& body_bounds);
+
+// The report and quality fields every pack that wrote config.output shares.
+void report_pack(StageRun& run, const Config& config, const PackPlan& plan,
+                 const std::set<std::uint16_t>& ids_seen, std::uint64_t bytes);
+
+// The config sections the pack stage's work depends on (its StageRun's).
+extern const std::vector<std::string> kPackSections;
+
+}  // namespace vispack::pipeline::detail

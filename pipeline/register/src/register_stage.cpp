@@ -1,0 +1,462 @@
+// The vispack-register stage driver: per-slice records (pairs + CT anchor, sharded), the global
+// solve, registered slices and QC pictures. See register_stage.h for how shards combine.
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+
+#include <opencv2/core/utility.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "vispack/common/atomic_file.h"
+#include "vispack/common/error.h"
+#include "vispack/common/parallel.h"
+#include "vispack/common/progress.h"
+#include "vispack/pipeline/core/output_frame.h"
+#include "vispack/pipeline/core/transforms.h"
+#include "vispack/pipeline/core/work_layout.h"
+#include "vispack/pipeline/imaging/intermediates.h"
+#include "vispack/pipeline/imaging/opencv_threads.h"
+#include "vispack/pipeline/imaging/slice_io.h"
+#include "vispack/pipeline/register/register.h"
+#include "vispack/pipeline/register/register_stage.h"
+
+namespace vispack::pipeline {
+namespace {
+
+namespace fs = std::filesystem;
+
+constexpr int kOverlayEdge = 512;                     // longer edge of the QC overlay, px
+constexpr std::size_t kSmallCacheBytes = 256u << 20;  // overlay pictures kept between phases
+
+// `slice` (8/16-bit grey or RGB) as 8-bit RGB with its longer edge at most `max_edge` (INTER_AREA):
+// the picture the overlay draws on.
+cv::Mat overlay_picture(const cv::Mat& slice, int max_edge) {
+  cv::Mat out = shrink_to_edge(slice, max_edge);
+  if (out.depth() == CV_16U) out.convertTo(out, CV_8U, 255.0 / 65535.0);
+  if (out.channels() == 1) cv::cvtColor(out, out, cv::COLOR_GRAY2RGB);
+  return out;
+}
+
+// `picture` (an overlay_picture of a slice on a `grid`-sized stack) registered by `rigid`: the
+// warp registered_colour applies at full size, carried to the picture's pixel grid.
+cv::Mat warp_picture(const cv::Mat& picture, const Rigid& rigid, cv::Size grid) {
+  const double sx = double(picture.cols) / grid.width, sy = double(picture.rows) / grid.height;
+  const cv::Matx23d small_to_full{1.0 / sx, 0, 0.5 / sx - 0.5, 0, 1.0 / sy, 0.5 / sy - 0.5};
+  const cv::Matx23d full_to_small{sx, 0, 0.5 * sx - 0.5, 0, sy, 0.5 * sy - 0.5};
+  const cv::Matx23d m = compose_affine(
+      full_to_small, compose_affine(rigid_matrix(rigid, image_centre(grid)), small_to_full));
+  cv::Mat out;
+  cv::warpAffine(picture, out, cv::Mat(m), picture.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP,
+                 cv::BORDER_REPLICATE);
+  return out;
+}
+
+std::string pairs_path(const Config& config, int k) {
+  return slice_output_path(config, "register", "pairs/pairs", k, "json");
+}
+
+// A sharded run's overlay picture of slice k (overlay_picture, lossless PNG), written with its
+// pair record: the shard that later draws the slice's QC overlay (after the solve, in another
+// process) warps it instead of decoding and warping the full-size slice again (~0.1 s a slice
+// at 2048x1216). The record holds the picture's identity ("picture"), so a picture that is not
+// the one written with the record is never used.
+std::string picture_path(const Config& config, int k) {
+  return slice_output_path(config, "register", "pairs/picture", k, "png");
+}
+
+// The overlay picture of slice k recorded with its pair record, or an empty matrix.
+cv::Mat recorded_picture(const Config& config, int k) {
+  try {
+    const auto record = nlohmann::json::parse(read_file(pairs_path(config, k)));
+    const std::string identity = record.value("picture", "");
+    const std::string path = picture_path(config, k);
+    if (identity.empty() || file_identity(path) != identity) return {};
+    return read_slice(path);
+  } catch (const std::exception&) {
+    return {};  // no record or no picture: the caller decodes the slice
+  }
+}
+
+// The CT slice on output slice k, if the CT stack has one.
+const SliceFile* ct_file(const Config& config, const std::vector<SliceFile>& ct_files, int k) {
+  if (!config.ct) return nullptr;
+  const int ct_k = k + config.ct->slice_offset;
+  if (ct_k < 0 || ct_k >= int(ct_files.size())) return nullptr;
+  return &ct_files[std::size_t(ct_k)];
+}
+
+// Fingerprint of what the record of slice k depends on: the register config section, the
+// anchor's inputs (ct section, output frame, hu threshold) and the files k−4..k (+ CT slice k).
+std::string pair_fingerprint(const Config& config, const std::vector<SliceFile>& files,
+                             const std::vector<SliceFile>& ct_files, bool anchored, int k) {
+  Fingerprint fp;
+  fp.text("pairs-v4");  // the record's layout and method version (v4: σ from the body size)
+  fp.text(config_section_hash(config, {"register", "spacing_mm"}));
+  for (int j = std::max(0, k - 4); j <= k; ++j)
+    fp.file(files[std::size_t(j)].path);
+  if (anchored) {
+    fp.text(config_section_hash(config, {"ct", "mask.hu_threshold"}));
+    const SliceFile* ct = ct_file(config, ct_files, k);
+    fp.text(ct ? ct->path : "no CT slice");
+    if (ct) fp.file(ct->path);
+  }
+  return fp.str();
+}
+
+// The stored record of slice k if it exists and is current.
+std::optional<SlicePairs> load_pairs(const std::string& path, const std::string& fingerprint) {
+  std::error_code ec;
+  if (!fs::exists(path, ec)) return std::nullopt;
+  try {
+    auto j = nlohmann::json::parse(read_file(path, 1 << 20));
+    if (j.value("fingerprint", "") != fingerprint) return std::nullopt;
+    return slice_pairs_from_json(j, path);
+  } catch (const std::exception&) {
+    return std::nullopt;  // unreadable or stale: recomputed
+  }
+}
+
+cv::Mat read_ct_hu(const CtSource& ct, const std::string& path) {
+  cv::Mat raw = read_slice(path, ct.raw);
+  if (raw.channels() != 1) throw InputError(cat(path, ": CT slice must be single-channel"));
+  cv::Mat hu;
+  raw.convertTo(hu, CV_32F, ct.slope, ct.intercept);
+  return hu;
+}
+
+void warn(const StageOptions& options, const std::string& message) {
+  (void)options;  // warnings are printed even with --quiet: they change what the output means
+  std::fprintf(stderr, "vispack-register: warning: %s\n", message.c_str());
+}
+
+}  // namespace
+
+StageResult run_register_stage(const Config& config, const StageOptions& options) {
+  const std::vector<SliceFile> files = stack_slices(config);
+  const int n = int(files.size());
+  RegisterOptions reg = config.registration;
+  if (!reg.enabled) reg.method = "none";
+  if (reg.method != "phase+ecc" && reg.method != "phase" && reg.method != "none")
+    throw ConfigError(cat(config.path, ": register.method: unknown method '", reg.method, "'"));
+  const bool anchored = config.ct && reg.enabled && (reg.anchor == "auto" || reg.anchor == "ct");
+  const std::vector<SliceFile> ct_files =
+      config.ct ? list_slices(*config.ct) : std::vector<SliceFile>{};
+  std::vector<SliceOverride> overrides;
+  if (!reg.overrides.empty()) overrides = read_overrides(reg.overrides, n);
+  std::vector<std::string> stage_inputs;
+  if (!reg.overrides.empty()) stage_inputs.push_back(reg.overrides);
+  StageRun run(config, "register", n, options,
+               {"rgb", "register", "ct", "spacing_mm", "mask.hu_threshold", "mask.gel_colour",
+                "mask.gel_distance", "work.write_registered"},
+               stage_inputs);
+  // The stage spreads slices over run.threads() workers: OpenCV's own pool stays off (with
+  // --threads 1 too, so that one thread means one core, as a SLURM task of one CPU expects).
+  ScopedOpenCvThreads opencv_threads(1);
+  const SliceRange range = run.range();
+  const auto t0 = std::chrono::steady_clock::now();
+  const std::optional<Similarity> ct_to_rgb =
+      config.ct ? std::optional<Similarity>(defined_ct_to_rgb(config)) : std::nullopt;
+  AnchorOptions anchor_options;
+  anchor_options.hu_threshold = config.mask.hu_threshold;
+  anchor_options.iterations = reg.ecc_iterations;
+
+  // 1. Per-slice records of the range.
+  make_directories(run.dir() + "/pairs");
+  std::vector<std::string> fingerprints(static_cast<std::size_t>(n));
+  auto fingerprint = [&](int k) {
+    std::string& f = fingerprints[std::size_t(k)];
+    if (f.empty()) f = pair_fingerprint(config, files, ct_files, anchored, k);
+    return f;
+  };
+  int first_missing = range.last, last_missing = range.first - 1;
+  for (int k = range.first; k < range.last; ++k) {
+    if (options.force || !load_pairs(pairs_path(config, k), fingerprint(k))) {
+      first_missing = std::min(first_missing, k);
+      last_missing = std::max(last_missing, k);
+    }
+  }
+  std::atomic<std::uint64_t> bytes{0};
+  int pairs_computed = 0;
+  // The QC overlay's picture of each slice whose pairs this run computes, kept from that read
+  // (issue 12: each colour slice decoded once per run, not again for its overlay). Bounded:
+  // larger ranges read their slices again. A sharded or records-only run also writes them with
+  // the records (the overlays may be drawn by a later run; a records-only run keeps none).
+  const bool write_pictures = run.sharded() || options.records_only;
+  const bool keep_small =
+      !options.records_only && std::int64_t(range.size()) * kOverlayEdge * kOverlayEdge * 3 <=
+                                   std::int64_t(kSmallCacheBytes);
+  std::vector<cv::Mat> small(keep_small ? std::size_t(n) : 0);
+  if (first_missing <= last_missing) {
+    // Every slice must have the first slice's size (issue 7: a slice replaced between runs).
+    const cv::Size stack_size = read_slice_size(files[0].path, config.rgb.raw);
+    const double anchor_scale = anchored ? anchor_working_scale(config) : 0.0;
+    auto frame = [&](int k) {
+      cv::Mat slice = read_slice(files[std::size_t(k)].path, config.rgb.raw);
+      if (slice.size() != stack_size)
+        throw InputError(cat(files[std::size_t(k)].path, ": slice is ", slice.cols, "x", slice.rows,
+                             ", the stack (", files[0].path, ") is ", stack_size.width, "x",
+                             stack_size.height));
+      bytes += slice.total() * slice.elemSize();
+      if ((keep_small || write_pictures) && k >= range.first && k < range.last) {
+        cv::Mat picture = overlay_picture(slice, kOverlayEdge);
+        if (write_pictures) write_work_image(picture_path(config, k), picture);
+        if (keep_small) small[std::size_t(k)] = std::move(picture);
+      }
+      return prepare_frame(slice, reg, anchor_scale);
+    };
+    std::function<std::optional<AnchorEstimate>(int, const RegisterFrame&)> anchor;
+    if (anchored && reg.method != "none") {
+      anchor = [&](int k, const RegisterFrame& f) -> std::optional<AnchorEstimate> {
+        const SliceFile* ct = ct_file(config, ct_files, k);
+        if (!ct) return std::nullopt;
+        const cv::Mat hu = read_ct_hu(*config.ct, ct->path);
+        bytes += hu.total() * 2;
+        return estimate_ct_anchor(f, hu, *ct_to_rgb, anchor_options);
+      };
+    }
+    std::vector<SlicePairs> computed =
+        compute_pairs(first_missing, last_missing + 1, frame, reg, run.threads(), anchor);
+    for (const auto& p : computed) {
+      nlohmann::json j = to_json(p);
+      j["fingerprint"] = fingerprint(p.index);
+      if (write_pictures && range.contains(p.index))
+        j["picture"] = file_identity(picture_path(config, p.index));
+      write_file_atomic(pairs_path(config, p.index), j.dump(1) + "\n");
+    }
+    pairs_computed = int(computed.size());
+  }
+  const double pair_seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  run.set_report("pairs_computed", pairs_computed);
+  run.set_report("pair_seconds", pair_seconds);
+  if (pairs_computed > 0) run.set_report("pair_seconds_per_slice", pair_seconds / pairs_computed);
+
+  // --records-only (a cluster's measure step): stop here; the solve, the registered slices and
+  // the QC overlays come from the next run over the records. Were the shard that happens to
+  // finish last to solve and draw its range's overlays (~2-5 s at 2048x1216), the measure
+  // step's shards would differ by that much and the step take as long as the slowest.
+  const std::string tpath = transforms_path(config);
+  if (options.records_only) {
+    run.set_report("waiting",
+                   cat("--records-only: ", pairs_computed, " pair records measured, ",
+                       range.size() - pairs_computed,
+                       " up to date; the solve (transforms.json), the registered slices and the "
+                       "QC overlays come from the next run over the records"));
+    run.add_bytes(bytes.load());
+    return run.finish(tpath);
+  }
+
+  // 2. Solve when every slice's record is present.
+  std::vector<SlicePairs> all;
+  all.reserve(std::size_t(n));
+  for (int k = 0; k < n; ++k) {
+    auto p = load_pairs(pairs_path(config, k), fingerprint(k));
+    if (!p) break;
+    all.push_back(std::move(*p));
+  }
+  if (int(all.size()) == n && n > 0) {
+    const cv::Size size = read_slice_size(files[0].path, config.rgb.raw);
+    StackSolveOptions so;
+    so.jump_px = reg.jump_px;
+    so.overrides = overrides;
+    if (anchored) {
+      so.anchor = "ct";
+    } else if (reg.anchor == "none" || !reg.enabled) {
+      so.anchor = "none";
+    } else {
+      so.anchor = "fiducials";  // "fiducials", or "auto" without CT
+    }
+    StackSolve solved = solve_stack(all, size, so);
+    if (so.anchor == "fiducials" && solved.fiducial_groups == 0) {
+      so.anchor = "none";
+      solved = solve_stack(all, size, so);
+    }
+    std::vector<SliceTransform>& slices = solved.slices;
+    for (int k = 0; k < n; ++k) {
+      slices[std::size_t(k)].number = files[std::size_t(k)].number;
+      slices[std::size_t(k)].file = fs::path(files[std::size_t(k)].path).filename().string();
+    }
+    StackTransforms st;
+    st.width = size.width;
+    st.height = size.height;
+    st.center_px = {(size.width - 1) / 2.0, (size.height - 1) / 2.0};
+    st.slices = slices;
+    st.extra["frame"] = solved.frame;
+    if (solved.frame == "ct") {
+      st.reference_slice.reset();
+    } else {
+      st.reference_slice = 0;
+    }
+    st.ct_to_rgb = ct_to_rgb;
+    // Rewrite only on change. Compared in memory: shards that solve at the same time (each
+    // register run that finds every record solves: on a cluster every per-slice shard does,
+    // scripts/vispack-slurm) find the same text and leave the file alone; a shared temporary
+    // name would let one remove the other's copy mid-compare. Two that both find it missing or
+    // stale both write the same bytes, and what depends on the file is keyed on its bytes, not
+    // its mtime (Fingerprint::content), so neither rewrite makes another shard's work stale.
+    bool same = false;
+    try {
+      same = fs::exists(tpath) && read_file(tpath) == transforms_text(st);
+    } catch (const std::exception&) {
+      same = false;
+    }
+    if (!same) write_transforms(tpath, st);
+    // The transform curves.
+    std::vector<std::optional<AnchorEstimate>> anchors(static_cast<std::size_t>(n));
+    for (int k = 0; k < n; ++k)
+      anchors[std::size_t(k)] = all[std::size_t(k)].anchor;
+    make_directories(run.dir() + "/qc");
+    write_image(run.dir() + "/qc/transforms.png",
+                plot_transforms(slices, anchors, overrides,
+                                cat(config.name, ": frame ", solved.frame, ", anchor ", so.anchor,
+                                    ", ", n, " slices")));
+    // Report.
+    run.set_quality("anchor", so.anchor);
+    run.set_quality("frame", solved.frame);
+    run.set_quality("fiducial_groups", solved.fiducial_groups);
+    nlohmann::json warnings = nlohmann::json::array();
+    if (so.anchor == "ct") {
+      nlohmann::json weak = nlohmann::json::array(), unanchored = nlohmann::json::array();
+      double csum = 0, rsum2 = 0;
+      int cn = 0;
+      for (const auto& s : slices) {
+        if (s.black || s.duplicate_of) continue;
+        const double conf = s.extra.value("anchor_confidence", 0.0);
+        if (conf == 0.0) {
+          unanchored.push_back(s.index);
+        } else if (conf < 0.3) {
+          weak.push_back({{"slice", s.index}, {"confidence", conf}});
+        }
+        if (s.extra.contains("anchor_residual_px") && conf > 0) {
+          const double r = s.extra["anchor_residual_px"].get<double>();
+          csum += conf, rsum2 += conf * r * r;
+          ++cn;
+        }
+      }
+      run.set_quality("anchors_used", solved.anchors_used);
+      run.set_quality("anchors_downweighted", solved.anchors_downweighted);
+      run.set_quality("anchor_residual_rms_px", cn ? std::sqrt(rsum2 / csum) : 0.0);
+      run.set_quality("low_confidence_anchors", weak);
+      run.set_quality("unanchored_slices", unanchored);
+      if (!unanchored.empty())
+        warnings.push_back(cat(unanchored.size(),
+                               " slices have no CT anchor (no body in the CT, no CT slice, or the "
+                               "alignment failed); their transforms follow their neighbours"));
+    } else {
+      warnings.push_back(
+          so.anchor == "fiducials"
+              ? "no CT anchor: drift is tied to the fiducial tubes only; where no tube is seen, "
+                "absolute drift is not observable"
+              : "no CT and no fiducials: absolute drift is not observable; the transforms are "
+                "slice-to-slice estimates regularised towards no drift (window 100 slices), "
+                "slice 0 is the reference");
+    }
+    for (const auto& w : warnings)
+      warn(options, w.get<std::string>());
+    run.set_report("warnings", warnings);
+    nlohmann::json over = nlohmann::json::array();
+    for (const auto& o : overrides)
+      over.push_back(to_json(o));
+    run.set_report("overrides", {{"file", reg.overrides}, {"slices", over}});
+    std::vector<int> jumps, blacks;
+    nlohmann::json duplicates = nlohmann::json::array();
+    double qsum = 0, qmin = 1;
+    int qn = 0;
+    for (const auto& s : slices) {
+      if (s.jump) jumps.push_back(s.index);
+      if (s.black) blacks.push_back(s.index);
+      if (s.duplicate_of) duplicates.push_back({s.index, *s.duplicate_of});
+      if (!s.black && !s.duplicate_of && s.index > 0)
+        qsum += s.quality, qmin = std::min(qmin, s.quality), ++qn;
+    }
+    run.set_quality("mean_quality", qn ? qsum / qn : 1.0);
+    run.set_quality("min_quality", qmin);
+    run.set_quality("jumps", jumps);
+    run.set_quality("black", blacks);
+    run.set_quality("duplicates", duplicates);
+    if (st.ct_to_rgb)
+      run.set_quality("ct_to_rgb", {{"scale", st.ct_to_rgb->scale},
+                                    {"rotation_deg", st.ct_to_rgb->rotation_deg},
+                                    {"dx_px", st.ct_to_rgb->dx_px},
+                                    {"dy_px", st.ct_to_rgb->dy_px},
+                                    {"defined_by",
+                                     "config (ct.pixel_spacing_mm, spacing_mm, "
+                                     "register.output_frame)"}});
+  } else {
+    run.set_report("waiting",
+                   cat(n - int(all.size()),
+                       " slices have no pair record yet; transforms.json is written when "
+                       "every shard has run"));
+  }
+
+  // 3. Registered slices and QC overlays of the range, once transforms.json covers the stack.
+  std::optional<StackTransforms> st;
+  try {
+    if (fs::exists(tpath)) st = read_transforms(tpath);
+  } catch (const std::exception&) {
+    st.reset();
+  }
+  if (st && int(st->slices.size()) == n) {
+    // The registered colour (work_layout.h registered_colour, the one implementation the later
+    // stages call too) is always computed for the QC overlay; written full size only with
+    // work.write_registered (issue 12: inspection copies cost disk, nothing reads them back).
+    StackInputs inputs;
+    inputs.rgb = files;
+    inputs.ct = ct_files;
+    inputs.transforms = *st;
+    const bool write_registered = config.work.write_registered;
+    if (write_registered) make_directories(run.dir() + "/registered");
+    make_directories(run.dir() + "/qc");
+    parallel_for(range.size(), run.threads(), [&](std::int64_t i) {
+      const int k = range.first + int(i);
+      const SliceTransform& t = st->slices[std::size_t(k)];
+      const SliceFile* ct = ct_file(config, ct_files, k);
+      Fingerprint in_fp;
+      in_fp.file(files[std::size_t(k)].path)
+          .number(t.rigid.dx_px)
+          .number(t.rigid.dy_px)
+          .number(t.rigid.rotation_deg);
+      if (ct) in_fp.file(ct->path);
+      const std::string in = in_fp.str();
+      const std::string out = registered_rgb_path(config, k);
+      const std::string overlay = run.slice_path("qc/overlay", k);
+      std::vector<std::string> outs = {overlay};
+      if (write_registered) outs.push_back(out);
+      if (run.up_to_date(k, in, outs)) {
+        run.skip(k);
+        return;
+      }
+      if (!write_registered) {
+        std::error_code ec;  // a copy from an earlier run must not outlive its transform
+        fs::remove(out, ec);
+      }
+      cv::Mat hu;
+      if (ct && st->ct_to_rgb) hu = read_ct_hu(*config.ct, ct->path);
+      const Similarity ct_to_rgb = st->ct_to_rgb ? *st->ct_to_rgb : Similarity{};
+      cv::Mat kept = keep_small ? small[std::size_t(k)] : cv::Mat();
+      if (kept.empty() && !write_registered) kept = recorded_picture(config, k);
+      if (!kept.empty() && !write_registered) {
+        // The overlay warped from the kept picture: the same slice, transform and outline as
+        // below, without decoding and warping the full-size slice again.
+        const cv::Mat registered_small = warp_picture(kept, t.rigid, inputs.size());
+        write_work_image(overlay,
+                         draw_ct_overlay(registered_small, hu, ct_to_rgb, config.mask.hu_threshold,
+                                         kOverlayEdge, inputs.size()));
+        run.done(k, in, outs, 0);
+        return;
+      }
+      const cv::Mat registered = registered_colour(config, inputs, k);
+      if (write_registered) write_image(out, registered);  // the copy on request: zlib level 4
+      write_work_image(overlay, draw_ct_overlay(registered, hu, ct_to_rgb, config.mask.hu_threshold,
+                                                kOverlayEdge));
+      run.done(k, in, outs, registered.total() * registered.elemSize());
+    });
+  }
+  run.add_bytes(bytes.load());
+  return run.finish(tpath);
+}
+
+}  // namespace vispack::pipeline
