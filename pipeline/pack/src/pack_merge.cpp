@@ -1,5 +1,5 @@
-// vispack-pack --merge and vispack-merge (pipeline/pack/pack.h "Sharding"): the packed file from the
-// shards' slab files. Kept apart from the rest of the pack so that vispack-merge links no image
+// vispack-pack --merge and vispack-merge (pipeline/pack/pack.h "Sharding"): the packed file from
+// the shards' slab files. Kept apart from the rest of the pack so that vispack-merge links no image
 // library: nothing here reads a slice (pack_plan.h).
 #include <algorithm>
 #include <cerrno>

@@ -1,6 +1,6 @@
-// vispack-merge: the packed file from a sharded pack's slab files (pipeline/pack/pack.h "Sharding"),
-// the same work as vispack-pack --merge. It links no image library (nothing in a merge reads a
-// slice), so it starts in a fraction of vispack-pack's time: the step a cluster runs alone
+// vispack-merge: the packed file from a sharded pack's slab files (pipeline/pack/pack.h
+// "Sharding"), the same work as vispack-pack --merge. It links no image library (nothing in a merge
+// reads a slice), so it starts in a fraction of vispack-pack's time: the step a cluster runs alone
 // between the shards and the OpenVDB export.
 #include "vispack/pipeline/core/stage_run.h"
 #include "vispack/pipeline/pack/pack_merge.h"

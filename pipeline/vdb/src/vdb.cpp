@@ -8,6 +8,7 @@
 #include <cstring>
 #include <filesystem>
 #include <memory>
+#include <optional>
 
 #include <openvdb/openvdb.h>
 #include <tbb/global_control.h>
@@ -73,207 +74,220 @@ std::string vdb_part_path(const Config& config, int first, int last) {
 
 namespace {
 
-// The export itself: run_vdb_stage runs it inside its TBB arena.
-StageResult export_vdb(const Config& config, const StageOptions& options) {
-  if (!config.vdb.enabled || config.vdb_output.empty())
-    throw ConfigError(cat(config.path, ": vdb.enabled is false: no OpenVDB export configured"));
-  const int stack = int(stack_slices(config).size());
-  SliceRange part{0, stack};
-  if (!options.slices.empty()) part = parse_slice_range(options.slices, stack);
-  const bool sharded = part.first != 0 || part.last != stack;
-  if (!fs::exists(config.output))
-    throw InputError(cat(config.output,
-                         ": packed file missing: vispack-vdb exports the packed "
-                         "file's pyramid (run vispack-pack first)"));
+// The part of the chosen level one export writes: level z in [z_first, z_last) (the whole level
+// unless sharded) and the bricks there that hold body (packed alpha > 0 somewhere), in index
+// order.
+struct LevelPart {
+  std::int64_t z_first = 0, z_last = 0;
+  std::vector<std::array<std::int64_t, 3>> body_bricks;
+};
 
-  // Unsharded: one unit (the file) in work/vdb. A shard: its part file is unit `part.first` of
-  // work/vdb-parts (a shard's manifest records only its own part).
-  const std::string output =
-      sharded ? vdb_part_path(config, part.first, part.last) : config.vdb_output;
-  Fingerprint fp;
-  fp.file(config.output).text(output);
-  if (sharded) fp.text(cat(part.first, ":", part.last));
-  StageOptions unit = options;
-  if (!sharded) unit.slices.clear();
-  StageRun run(config, sharded ? "vdb-parts" : "vdb", sharded ? stack : 1, unit, {"vdb"});
-  const int unit_index = sharded ? part.first : 0;
-  run.remove_stale_temporaries_of(output);
-  const std::string input = fp.str();
-  if (run.up_to_date(unit_index, input, {output})) {
-    run.skip(unit_index);
-    return run.finish(output);
-  }
-
-  const format::Reader reader = format::Reader::open(config.output);
-  const VdbLevelChoice choice = choose_vdb_level(config, reader, run.threads());
-  const int level = choice.level;
+// Stack slices [part.first, part.last) of a stack of `stack` slices cover the level's z range
+// ceil(A * D / S) .. ceil(B * D / S): consecutive shards meet exactly, so their parts tile the
+// level.
+LevelPart level_part(const format::Reader& reader, int rgba, int level, SliceRange part,
+                     int stack) {
   const format::LevelInfo& info = reader.level(level);
-  const std::string chosen = describe_vdb_choice(choice);
-  if (!options.quiet)
-    std::printf(
-        "vdb: exporting %s (%s)%s\n", chosen.c_str(),
-        choice.automatic ? "the finest level within vdb.max_memory_mb" : "vdb.level",
-        sharded ? cat(", slices ", part.first, ":", part.last, " to ", output).c_str() : "");
-  std::fflush(stdout);
+  const std::int64_t edge = reader.brick_edge();
+  const auto& grid = info.bricks;
+  const std::int64_t depth = info.dims[2];
+  const auto level_z = [&](int s) { return (std::int64_t(s) * depth + stack - 1) / stack; };
+  LevelPart out;
+  out.z_first = level_z(part.first);
+  out.z_last = level_z(part.last);
+  const std::int64_t bz_first = out.z_first / edge, bz_last = (out.z_last + edge - 1) / edge;
+  for (std::int64_t bz = bz_first; bz < bz_last; ++bz)
+    for (std::int64_t by = 0; by < grid[1]; ++by)
+      for (std::int64_t bx = 0; bx < grid[0]; ++bx)
+        if (reader.brick(rgba, level, bx, by, bz).max[3] != 0)
+          out.body_bricks.push_back({bx, by, bz});
+  return out;
+}
 
-  const int rgba = reader.channel_index("rgba");
-  const std::optional<int> ct_channel = reader.find_channel("ct");
-  const std::optional<int> label_channel = reader.find_channel("labels");
-  const bool labels16 = label_channel && reader.channels()[std::size_t(*label_channel)].type ==
-                                             format::ChannelType::kUint16;
+// The channels of the packed file the export reads.
+struct ExportChannels {
+  int rgba = 0;
+  std::optional<int> ct, labels;
+  bool labels16 = false;
+};
 
-  openvdb::initialize();
+ExportChannels export_channels(const format::Reader& reader) {
+  ExportChannels c;
+  c.rgba = reader.channel_index("rgba");
+  c.ct = reader.find_channel("ct");
+  c.labels = reader.find_channel("labels");
+  c.labels16 =
+      c.labels && reader.channels()[std::size_t(*c.labels)].type == format::ChannelType::kUint16;
+  return c;
+}
+
+// The three grids of one builder thread (or, merged, of the export).
+struct ExportGrids {
+  openvdb::FloatGrid::Ptr ct = openvdb::FloatGrid::create(-1024.0f);
+  openvdb::Int32Grid::Ptr labels = openvdb::Int32Grid::create(0);
+  openvdb::Vec3SGrid::Ptr rgb = openvdb::Vec3SGrid::create(openvdb::Vec3s(0, 0, 0));
+  std::uint64_t active = 0;
+};
+
+// With a brick edge that is a multiple of the leaf edge (8), each brick is whole leaves: they
+// are filled directly and added to the trees (a leaf per 8^3 voxels holding body, inactive
+// voxels at the background, as voxel-by-voxel accessor writes leave them, without an accessor
+// lookup per voxel); edge 4 takes the accessor.
+constexpr int kLeaf = 8;
+using CtLeaf = openvdb::FloatTree::LeafNodeType;
+using LabelLeaf = openvdb::Int32Tree::LeafNodeType;
+using RgbLeaf = openvdb::Vec3STree::LeafNodeType;
+static_assert(CtLeaf::DIM == kLeaf && LabelLeaf::DIM == kLeaf && RgbLeaf::DIM == kLeaf);
+
+// One decoded brick of each channel (ct and labels null when the file has none) and the
+// brick's voxel box inside the part: x < nx, y < ny, z in [z_begin, nz), brick-local.
+struct BrickVoxels {
+  const std::uint8_t* rgba = nullptr;
+  const std::uint8_t* ct = nullptr;
+  const std::uint8_t* labels = nullptr;
+  bool labels16 = false;
+  std::int64_t edge = 0, nx = 0, ny = 0, z_begin = 0, nz = 0;
+  std::size_t offset(std::int64_t x, std::int64_t y, std::int64_t z) const {
+    return std::size_t((z * edge + y) * edge + x);
+  }
+  openvdb::Vec3s rgb_at(std::size_t v) const {
+    const std::uint8_t* px = rgba + 4 * v;
+    return {px[0] / 255.0f, px[1] / 255.0f, px[2] / 255.0f};
+  }
+  bool body_at(std::size_t v) const { return rgba[4 * v + 3] != 0; }
+  float hu_at(std::size_t v) const {
+    std::int16_t hu;
+    std::memcpy(&hu, ct + 2 * v, 2);
+    return float(hu);
+  }
+  int id_at(std::size_t v) const {
+    std::uint16_t id = labels[v];
+    if (labels16) std::memcpy(&id, labels + 2 * v, 2);
+    return int(id);
+  }
+};
+
+// The brick's body voxels written one by one through accessors (any brick edge).
+void add_brick_by_voxels(const BrickVoxels& b, const openvdb::Coord& brick_origin,
+                         ExportGrids& out) {
+  auto ct_acc = out.ct->getAccessor();
+  auto label_acc = out.labels->getAccessor();
+  auto rgb_acc = out.rgb->getAccessor();
+  for (std::int64_t z = b.z_begin; z < b.nz; ++z)
+    for (std::int64_t y = 0; y < b.ny; ++y)
+      for (std::int64_t x = 0; x < b.nx; ++x) {
+        const std::size_t v = b.offset(x, y, z);
+        if (!b.body_at(v)) continue;
+        const openvdb::Coord ijk = brick_origin.offsetBy(int(x), int(y), int(z));
+        rgb_acc.setValue(ijk, b.rgb_at(v));
+        if (b.ct) ct_acc.setValue(ijk, b.hu_at(v));
+        if (b.labels) label_acc.setValue(ijk, b.id_at(v));
+        ++out.active;
+      }
+}
+
+// The brick's body voxels as whole leaves added to the trees (brick edge a multiple of 8).
+void add_brick_by_leaves(const BrickVoxels& b, const openvdb::Coord& brick_origin,
+                         ExportGrids& out) {
+  for (std::int64_t lz = b.z_begin / kLeaf * kLeaf; lz < b.nz; lz += kLeaf)
+    for (std::int64_t ly = 0; ly < b.ny; ly += kLeaf)
+      for (std::int64_t lx = 0; lx < b.nx; lx += kLeaf) {
+        const openvdb::Coord origin = brick_origin.offsetBy(int(lx), int(ly), int(lz));
+        std::unique_ptr<RgbLeaf> rgb_leaf;
+        std::unique_ptr<CtLeaf> ct_leaf;
+        std::unique_ptr<LabelLeaf> label_leaf;
+        for (std::int64_t z = std::max(lz, b.z_begin); z < std::min(lz + kLeaf, b.nz); ++z)
+          for (std::int64_t y = ly; y < std::min(ly + kLeaf, b.ny); ++y)
+            for (std::int64_t x = lx; x < std::min(lx + kLeaf, b.nx); ++x) {
+              const std::size_t v = b.offset(x, y, z);
+              if (!b.body_at(v)) continue;
+              if (!rgb_leaf) {
+                rgb_leaf = std::make_unique<RgbLeaf>(origin, out.rgb->background(), false);
+                if (b.ct) ct_leaf = std::make_unique<CtLeaf>(origin, out.ct->background(), false);
+                if (b.labels)
+                  label_leaf = std::make_unique<LabelLeaf>(origin, out.labels->background(), false);
+              }
+              // A leaf's offset: x slowest, z fastest (LeafNode::coordToOffset).
+              const openvdb::Index offset =
+                  openvdb::Index(((x - lx) << 6) | ((y - ly) << 3) | (z - lz));
+              rgb_leaf->setValueOn(offset, b.rgb_at(v));
+              if (ct_leaf) ct_leaf->setValueOn(offset, b.hu_at(v));
+              if (label_leaf) label_leaf->setValueOn(offset, b.id_at(v));
+              ++out.active;
+            }
+        if (!rgb_leaf) continue;
+        out.rgb->tree().addLeaf(rgb_leaf.release());
+        if (ct_leaf) out.ct->tree().addLeaf(ct_leaf.release());
+        if (label_leaf) out.labels->tree().addLeaf(label_leaf.release());
+      }
+}
+
+// The grids of the part's body bricks, built on up to `threads` threads, each from a contiguous
+// run of those bricks into grids of its own, then merged in order (OpenVDB trees take values
+// from one thread). The runs' leaves (8^3 voxels) are disjoint when the brick edge is a
+// multiple of 8, so the merge only moves nodes and the trees equal a one-thread build; other
+// edges build on one thread.
+ExportGrids build_grids(const format::Reader& reader, int level, const ExportChannels& channels,
+                        const LevelPart& part, int threads) {
+  const format::LevelInfo& info = reader.level(level);
+  const std::int64_t edge = reader.brick_edge();
+  const bool by_leaves = edge % kLeaf == 0;
+  const auto& bricks = part.body_bricks;
+  const int workers = int(std::clamp<std::int64_t>(
+      by_leaves ? threads : 1, 1, std::max<std::int64_t>(1, std::int64_t(bricks.size()))));
+  std::vector<ExportGrids> grids(static_cast<std::size_t>(workers));
+  parallel_for(workers, workers, [&](std::int64_t w) {
+    std::vector<std::uint8_t> rgba_buf, ct_buf, label_buf;
+    const std::size_t n = bricks.size();
+    for (std::size_t i = n * std::size_t(w) / std::size_t(workers);
+         i < n * std::size_t(w + 1) / std::size_t(workers); ++i) {
+      const auto [bx, by, bz] = bricks[i];
+      BrickVoxels b;
+      b.rgba = brick_voxels(reader, reader.brick(channels.rgba, level, bx, by, bz), rgba_buf);
+      if (channels.ct)
+        b.ct = brick_voxels(reader, reader.brick(*channels.ct, level, bx, by, bz), ct_buf);
+      if (channels.labels)
+        b.labels =
+            brick_voxels(reader, reader.brick(*channels.labels, level, bx, by, bz), label_buf);
+      b.labels16 = channels.labels16;
+      b.edge = edge;
+      b.nx = std::min(edge, info.dims[0] - bx * edge);
+      b.ny = std::min(edge, info.dims[1] - by * edge);
+      b.z_begin = std::max<std::int64_t>(0, part.z_first - bz * edge);
+      b.nz = std::min(edge, part.z_last - bz * edge);
+      const openvdb::Coord origin(int(bx * edge), int(by * edge), int(bz * edge));
+      if (by_leaves)
+        add_brick_by_leaves(b, origin, grids[std::size_t(w)]);
+      else
+        add_brick_by_voxels(b, origin, grids[std::size_t(w)]);
+    }
+  });
+  ExportGrids out = grids[0];
+  for (std::size_t w = 1; w < grids.size(); ++w) {
+    out.ct->tree().merge(grids[w].ct->tree(), openvdb::MERGE_ACTIVE_STATES);
+    out.labels->tree().merge(grids[w].labels->tree(), openvdb::MERGE_ACTIVE_STATES);
+    out.rgb->tree().merge(grids[w].rgb->tree(), openvdb::MERGE_ACTIVE_STATES);
+    out.active += grids[w].active;
+  }
   // Index (i, j, k) of the level has its centre at origin_mm + (i, j, k) * spacing_mm.
   openvdb::math::Mat4d scale = openvdb::math::Mat4d::identity();
   scale.setToScale(openvdb::Vec3d(info.spacing_mm[0], info.spacing_mm[1], info.spacing_mm[2]));
   auto xform = openvdb::math::Transform::createLinearTransform(scale);
   xform->postTranslate(openvdb::Vec3d(info.origin_mm[0], info.origin_mm[1], info.origin_mm[2]));
+  out.ct->setTransform(xform);
+  out.labels->setTransform(xform->copy());
+  out.rgb->setTransform(xform->copy());
+  return out;
+}
 
-  // The bricks of this part that hold body (packed alpha > 0 somewhere), in index order; a voxel
-  // is active where the packed alpha (body coverage) is > 0: at level 0 of an undownsampled file
-  // exactly the body mask.
-  const std::int64_t edge = reader.brick_edge();
-  const auto& grid = info.bricks;
-  // The level's z range of this part: ceil(A * D / S) .. ceil(B * D / S) (the whole level when
-  // not sharded); consecutive shards meet exactly, so their parts tile the level.
-  const std::int64_t depth = info.dims[2];
-  const auto level_z = [&](int s) { return (std::int64_t(s) * depth + stack - 1) / stack; };
-  const std::int64_t z_first = sharded ? level_z(part.first) : 0;
-  const std::int64_t z_last = sharded ? level_z(part.last) : depth;
-  const std::int64_t bz_first = z_first / edge, bz_last = (z_last + edge - 1) / edge;
-  std::vector<std::array<std::int64_t, 3>> body_bricks;
-  for (std::int64_t bz = bz_first; bz < bz_last; ++bz)
-    for (std::int64_t by = 0; by < grid[1]; ++by)
-      for (std::int64_t bx = 0; bx < grid[0]; ++bx)
-        if (reader.brick(rgba, level, bx, by, bz).max[3] != 0) body_bricks.push_back({bx, by, bz});
-
-  // The grids are built on run.threads() threads, each from a contiguous run of those bricks
-  // into grids of its own, then merged in order (OpenVDB trees take values from one thread). The
-  // runs' leaves (8^3 voxels) are disjoint when the brick edge is a multiple of 8, so the merge
-  // only moves nodes and the trees equal a one-thread build; other edges build on one thread.
-  struct Part {
-    openvdb::FloatGrid::Ptr ct = openvdb::FloatGrid::create(-1024.0f);
-    openvdb::Int32Grid::Ptr labels = openvdb::Int32Grid::create(0);
-    openvdb::Vec3SGrid::Ptr rgb = openvdb::Vec3SGrid::create(openvdb::Vec3s(0, 0, 0));
-    std::uint64_t active = 0;
-  };
-  // With a brick edge that is a multiple of the leaf edge (8), each brick is whole leaves: they
-  // are filled directly and added to the trees (a leaf per 8^3 voxels holding body, inactive
-  // voxels at the background, as voxel-by-voxel accessor writes leave them, without an accessor
-  // lookup per voxel); edge 4 takes the accessor.
-  constexpr int kLeaf = 8;
-  using CtLeaf = openvdb::FloatTree::LeafNodeType;
-  using LabelLeaf = openvdb::Int32Tree::LeafNodeType;
-  using RgbLeaf = openvdb::Vec3STree::LeafNodeType;
-  static_assert(CtLeaf::DIM == kLeaf && LabelLeaf::DIM == kLeaf && RgbLeaf::DIM == kLeaf);
-  const bool by_leaves = edge % kLeaf == 0;
-  const int workers =
-      int(std::clamp<std::int64_t>(by_leaves ? run.threads() : 1, 1,
-                                   std::max<std::int64_t>(1, std::int64_t(body_bricks.size()))));
-  std::vector<Part> parts(static_cast<std::size_t>(workers));
-  parallel_for(workers, workers, [&](std::int64_t w) {
-    Part& out = parts[std::size_t(w)];
-    auto ct_acc = out.ct->getAccessor();
-    auto label_acc = out.labels->getAccessor();
-    auto rgb_acc = out.rgb->getAccessor();
-    std::vector<std::uint8_t> rgba_buf, ct_buf, label_buf;
-    const std::size_t n = body_bricks.size();
-    for (std::size_t i = n * std::size_t(w) / std::size_t(workers);
-         i < n * std::size_t(w + 1) / std::size_t(workers); ++i) {
-      const auto [bx, by, bz] = body_bricks[i];
-      const std::uint8_t* c = brick_voxels(reader, reader.brick(rgba, level, bx, by, bz), rgba_buf);
-      const std::uint8_t* h =
-          ct_channel ? brick_voxels(reader, reader.brick(*ct_channel, level, bx, by, bz), ct_buf)
-                     : nullptr;
-      const std::uint8_t* l =
-          label_channel
-              ? brick_voxels(reader, reader.brick(*label_channel, level, bx, by, bz), label_buf)
-              : nullptr;
-      const std::int64_t nx = std::min(edge, info.dims[0] - bx * edge);
-      const std::int64_t ny = std::min(edge, info.dims[1] - by * edge);
-      const std::int64_t z_begin = std::max<std::int64_t>(0, z_first - bz * edge);
-      const std::int64_t nz = std::min(edge, z_last - bz * edge);
-      const auto hu_at = [&](std::size_t v) {
-        std::int16_t hu;
-        std::memcpy(&hu, h + 2 * v, 2);
-        return float(hu);
-      };
-      const auto id_at = [&](std::size_t v) {
-        std::uint16_t id = l[v];
-        if (labels16) std::memcpy(&id, l + 2 * v, 2);
-        return int(id);
-      };
-      if (!by_leaves) {
-        for (std::int64_t z = z_begin; z < nz; ++z)
-          for (std::int64_t y = 0; y < ny; ++y)
-            for (std::int64_t x = 0; x < nx; ++x) {
-              const std::size_t v = std::size_t((z * edge + y) * edge + x);
-              const std::uint8_t* px = c + 4 * v;
-              if (px[3] == 0) continue;
-              const openvdb::Coord ijk(int(bx * edge + x), int(by * edge + y), int(bz * edge + z));
-              rgb_acc.setValue(ijk, openvdb::Vec3s(px[0] / 255.0f, px[1] / 255.0f, px[2] / 255.0f));
-              if (h) ct_acc.setValue(ijk, hu_at(v));
-              if (l) label_acc.setValue(ijk, id_at(v));
-              ++out.active;
-            }
-        continue;
-      }
-      for (std::int64_t lz = z_begin / kLeaf * kLeaf; lz < nz; lz += kLeaf)
-        for (std::int64_t ly = 0; ly < ny; ly += kLeaf)
-          for (std::int64_t lx = 0; lx < nx; lx += kLeaf) {
-            const openvdb::Coord origin(int(bx * edge + lx), int(by * edge + ly),
-                                        int(bz * edge + lz));
-            std::unique_ptr<RgbLeaf> rgb_leaf;
-            std::unique_ptr<CtLeaf> ct_leaf;
-            std::unique_ptr<LabelLeaf> label_leaf;
-            for (std::int64_t z = std::max(lz, z_begin); z < std::min(lz + kLeaf, nz); ++z)
-              for (std::int64_t y = ly; y < std::min(ly + kLeaf, ny); ++y)
-                for (std::int64_t x = lx; x < std::min(lx + kLeaf, nx); ++x) {
-                  const std::size_t v = std::size_t((z * edge + y) * edge + x);
-                  const std::uint8_t* px = c + 4 * v;
-                  if (px[3] == 0) continue;
-                  if (!rgb_leaf) {
-                    rgb_leaf = std::make_unique<RgbLeaf>(origin, out.rgb->background(), false);
-                    if (h) ct_leaf = std::make_unique<CtLeaf>(origin, out.ct->background(), false);
-                    if (l)
-                      label_leaf =
-                          std::make_unique<LabelLeaf>(origin, out.labels->background(), false);
-                  }
-                  // A leaf's offset: x slowest, z fastest (LeafNode::coordToOffset).
-                  const openvdb::Index offset =
-                      openvdb::Index(((x - lx) << 6) | ((y - ly) << 3) | (z - lz));
-                  rgb_leaf->setValueOn(
-                      offset, openvdb::Vec3s(px[0] / 255.0f, px[1] / 255.0f, px[2] / 255.0f));
-                  if (ct_leaf) ct_leaf->setValueOn(offset, hu_at(v));
-                  if (label_leaf) label_leaf->setValueOn(offset, id_at(v));
-                  ++out.active;
-                }
-            if (!rgb_leaf) continue;
-            out.rgb->tree().addLeaf(rgb_leaf.release());
-            if (ct_leaf) out.ct->tree().addLeaf(ct_leaf.release());
-            if (label_leaf) out.labels->tree().addLeaf(label_leaf.release());
-          }
-    }
-  });
-  openvdb::FloatGrid::Ptr ct_grid = parts[0].ct;
-  openvdb::Int32Grid::Ptr label_grid = parts[0].labels;
-  openvdb::Vec3SGrid::Ptr rgb_grid = parts[0].rgb;
-  std::uint64_t active = parts[0].active;
-  for (std::size_t w = 1; w < parts.size(); ++w) {
-    ct_grid->tree().merge(parts[w].ct->tree(), openvdb::MERGE_ACTIVE_STATES);
-    label_grid->tree().merge(parts[w].labels->tree(), openvdb::MERGE_ACTIVE_STATES);
-    rgb_grid->tree().merge(parts[w].rgb->tree(), openvdb::MERGE_ACTIVE_STATES);
-    active += parts[w].active;
-  }
-  parts.resize(1);
-  ct_grid->setTransform(xform);
-  label_grid->setTransform(xform->copy());
-  rgb_grid->setTransform(xform->copy());
-
-  // Said in the file (per grid and for the file), the report and the stdout line above.
+// What the file says of itself (per grid and for the file): version, level and how it was
+// chosen, voxel size and origin in mm, the source, and a shard's slices and level z range.
+openvdb::MetaMap export_metadata(const Config& config, const format::LevelInfo& info,
+                                 const VdbLevelChoice& choice, bool sharded, SliceRange slices,
+                                 const LevelPart& part) {
   openvdb::MetaMap meta;
   meta.insertMeta("vispack_version", openvdb::StringMetadata(version_string()));
-  meta.insertMeta("vispack_level", openvdb::Int32Metadata(level));
+  meta.insertMeta("vispack_level", openvdb::Int32Metadata(choice.level));
   meta.insertMeta("vispack_level_choice",
                   openvdb::StringMetadata(choice.automatic ? "auto" : "vdb.level"));
   meta.insertMeta("vispack_voxel_size_mm",
@@ -285,39 +299,46 @@ StageResult export_vdb(const Config& config, const StageOptions& options) {
   meta.insertMeta("vispack_source", openvdb::StringMetadata(fs::path(config.output).filename()));
   if (sharded) {
     meta.insertMeta("vispack_part_slices",
-                    openvdb::StringMetadata(cat(part.first, ":", part.last)));
-    meta.insertMeta("vispack_part_z", openvdb::StringMetadata(cat(z_first, ":", z_last)));
+                    openvdb::StringMetadata(cat(slices.first, ":", slices.last)));
+    meta.insertMeta("vispack_part_z", openvdb::StringMetadata(cat(part.z_first, ":", part.z_last)));
   }
-  openvdb::GridPtrVec grids;
+  return meta;
+}
+
+// The grids the file holds, named, each carrying `meta` and its units: ct (HU) and labels (id)
+// when the packed file has them, rgb (0..1) always.
+openvdb::GridPtrVec named_grids(const ExportGrids& grids, const ExportChannels& channels,
+                                const openvdb::MetaMap& meta) {
+  openvdb::GridPtrVec out;
   auto name_grid = [&](openvdb::GridBase::Ptr g, const char* name, const char* units) {
     g->setName(name);
     for (auto it = meta.beginMeta(); it != meta.endMeta(); ++it)
       g->insertMeta(it->first, *it->second);
     g->insertMeta("units", openvdb::StringMetadata(units));
-    grids.push_back(g);
+    out.push_back(g);
   };
-  if (ct_channel) name_grid(ct_grid, "ct", "HU");
-  if (label_channel) name_grid(label_grid, "labels", "id");
-  name_grid(rgb_grid, "rgb", "rgb01");
-  const std::uint64_t leaves = rgb_grid->tree().leafCount();
+  if (channels.ct) name_grid(grids.ct, "ct", "HU");
+  if (channels.labels) name_grid(grids.labels, "labels", "id");
+  name_grid(grids.rgb, "rgb", "rgb01");
+  return out;
+}
 
-  make_directories(fs::path(output).parent_path().string());
-  // Written to a temporary name and renamed into place (removed on any failure); the write
-  // system calls overlap OpenVDB's serialisation when a second thread is allowed.
-  write_vdb_grids(output, openvdb::GridCPtrVec(grids.begin(), grids.end()), meta,
-                  run.threads() > 1);
-  run.done(unit_index, input, {output}, reader.file_size());
+// The stage report of a written export.
+void report_export(StageRun& run, const Config& config, const std::string& output,
+                   const VdbLevelChoice& choice, const format::LevelInfo& info, bool sharded,
+                   SliceRange slices, const LevelPart& part, const openvdb::GridPtrVec& grids,
+                   std::uint64_t active, std::uint64_t leaves) {
   run.set_report("output", output);
   run.set_report("output_bytes", std::uint64_t(fs::file_size(output)));
   if (sharded) {
-    run.set_report("part_slices", {part.first, part.last});
-    run.set_report("part_z", {z_first, z_last});
+    run.set_report("part_slices", {slices.first, slices.last});
+    run.set_report("part_z", {part.z_first, part.z_last});
   }
   nlohmann::json names = nlohmann::json::array();
   for (const auto& g : grids)
     names.push_back(g->getName());
   run.set_report("grids", names);
-  run.set_report("level", level);
+  run.set_report("level", choice.level);
   run.set_report("level_choice", choice.automatic ? "auto" : "vdb.level");
   run.set_report("voxel_size_mm", info.spacing_mm);
   run.set_report("origin_mm", info.origin_mm);
@@ -329,6 +350,68 @@ StageResult export_vdb(const Config& config, const StageOptions& options) {
   run.set_report("peak_rss_mb", peak_rss_mb());
   run.set_quality("active_voxels", active);
   run.set_quality("leaves", leaves);
+}
+
+// The export itself: run_vdb_stage runs it inside its TBB arena.
+StageResult export_vdb(const Config& config, const StageOptions& options) {
+  if (!config.vdb.enabled || config.vdb_output.empty())
+    throw ConfigError(cat(config.path, ": vdb.enabled is false: no OpenVDB export configured"));
+  const int stack = int(stack_slices(config).size());
+  SliceRange slices{0, stack};
+  if (!options.slices.empty()) slices = parse_slice_range(options.slices, stack);
+  const bool sharded = slices.first != 0 || slices.last != stack;
+  if (!fs::exists(config.output))
+    throw InputError(cat(config.output,
+                         ": packed file missing: vispack-vdb exports the packed "
+                         "file's pyramid (run vispack-pack first)"));
+
+  // Unsharded: one unit (the file) in work/vdb. A shard: its part file is unit `slices.first` of
+  // work/vdb-parts (a shard's manifest records only its own part).
+  const std::string output =
+      sharded ? vdb_part_path(config, slices.first, slices.last) : config.vdb_output;
+  Fingerprint fp;
+  fp.file(config.output).text(output);
+  if (sharded) fp.text(cat(slices.first, ":", slices.last));
+  StageOptions unit = options;
+  if (!sharded) unit.slices.clear();
+  StageRun run(config, sharded ? "vdb-parts" : "vdb", sharded ? stack : 1, unit, {"vdb"});
+  const int unit_index = sharded ? slices.first : 0;
+  run.remove_stale_temporaries_of(output);
+  const std::string input = fp.str();
+  if (run.up_to_date(unit_index, input, {output})) {
+    run.skip(unit_index);
+    return run.finish(output);
+  }
+
+  const format::Reader reader = format::Reader::open(config.output);
+  const VdbLevelChoice choice = choose_vdb_level(config, reader, run.threads());
+  const format::LevelInfo& info = reader.level(choice.level);
+  const std::string chosen = describe_vdb_choice(choice);
+  if (!options.quiet)
+    std::printf(
+        "vdb: exporting %s (%s)%s\n", chosen.c_str(),
+        choice.automatic ? "the finest level within vdb.max_memory_mb" : "vdb.level",
+        sharded ? cat(", slices ", slices.first, ":", slices.last, " to ", output).c_str() : "");
+  std::fflush(stdout);
+
+  const ExportChannels channels = export_channels(reader);
+  openvdb::initialize();
+  // A voxel is active where the packed alpha (body coverage) is > 0: at level 0 of an
+  // undownsampled file exactly the body mask.
+  const LevelPart part = level_part(reader, channels.rgba, choice.level, slices, stack);
+  ExportGrids grids = build_grids(reader, choice.level, channels, part, run.threads());
+  const openvdb::MetaMap meta = export_metadata(config, info, choice, sharded, slices, part);
+  const openvdb::GridPtrVec named = named_grids(grids, channels, meta);
+  const std::uint64_t leaves = grids.rgb->tree().leafCount();
+
+  make_directories(fs::path(output).parent_path().string());
+  // Written to a temporary name and renamed into place (removed on any failure); the write
+  // system calls overlap OpenVDB's serialisation when a second thread is allowed.
+  write_vdb_grids(output, openvdb::GridCPtrVec(named.begin(), named.end()), meta,
+                  run.threads() > 1);
+  run.done(unit_index, input, {output}, reader.file_size());
+  report_export(run, config, output, choice, info, sharded, slices, part, named, grids.active,
+                leaves);
   return run.finish(output);
 }
 

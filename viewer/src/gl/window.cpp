@@ -178,6 +178,205 @@ render::Image8 read_window(int w, int h) {
   return image;
 }
 
+// Runs the script's view changes up to its next wait or screenshot (those hold until the view is
+// complete: run_window takes them).
+void apply_view_commands(const std::vector<Command>& script, std::size_t& next, State& state) {
+  for (; next < script.size(); ++next) {
+    const Command& c = script[next];
+    if (c.verb == "wait" || c.verb == "screenshot") break;
+    if (c.verb == "azimuth") state.orbit.azimuth_deg = std::stod(c.arg);
+    if (c.verb == "elevation") state.orbit.elevation_deg = std::stod(c.arg);
+    if (c.verb == "zoom") state.orbit.zoom = std::stod(c.arg);
+    if (c.verb == "mode") state.params.mode = *render::mode_from_name(c.arg);
+  }
+}
+
+// What one frame drew and how long it took (the panel shows it; a screenshot waits for a frame
+// with nothing missing).
+struct FrameResult {
+  render::BrickPlan plan;
+  bool moving = false;
+  double render_ms = 0;
+};
+
+// One frame: the camera from the interaction state (lower resolution, fewer slices and coarser
+// bricks while it moves), bricks paged by view (plan with what is resident, ask for what is
+// missing, coarsest first, upload for at most ~10 ms), drawn into the window's framebuffer.
+FrameResult draw_frame(const State& state, const render::LevelGeometry& g0,
+                       const render::BrickTree& tree, BrickCache& cache,
+                       const render::PlanOptions& base_plan, SliceRenderer& renderer, int fw,
+                       int fh) {
+  FrameResult out;
+  out.moving = now() - state.last_change < 0.25 || state.button >= 0;
+  const int scale = out.moving ? 2 : 1;
+  render::RenderParams params = state.params;
+  if (out.moving) params.slices_per_voxel = std::max(params.slices_per_voxel / 2, 0.5);
+  render::OrbitParams orbit = state.orbit;
+  orbit.target = g0.box().centre();
+  params.mpr_target = orbit.target + orbit.pan_mm;
+  render::Camera cam =
+      render::orbit_camera(orbit, g0.box(), std::max(fw / scale, 1), std::max(fh / scale, 1));
+  const unsigned channels = render::channels_for(params, tree.present_channels());
+  render::PlanOptions popt = base_plan;
+  if (out.moving) popt.lod_pixels *= 2;
+  out.plan = render::plan_bricks(tree, cam, params, popt, channels, [&](const render::BrickKey& k) {
+    return cache.resident(k, channels);
+  });
+  cache.request(out.plan.missing, channels);
+  std::size_t bad_before = cache.stats().bad_brick_errors.size();
+  cache.pump(0.010);
+  for (std::size_t i = bad_before; i < cache.stats().bad_brick_errors.size(); ++i)
+    std::fprintf(stderr, "vispack-view: warning: %s; shown as missing\n",
+                 cache.stats().bad_brick_errors[i].c_str());
+  cache.use(out.plan.draw);
+  const double t0 = now();
+  renderer.render_bricks(cache, tree, out.plan, cam, params);
+  glClearColor(0, 0, 0, 1);
+  glBindFramebuffer(GL_FRAMEBUFFER, 0);
+  glClear(GL_COLOR_BUFFER_BIT);
+  renderer.resolve(0, 0, 0, fw, fh);
+  glFinish();
+  out.render_ms = (now() - t0) * 1e3;
+  return out;
+}
+
+#ifdef VISPACK_HAVE_IMGUI
+// The Dear ImGui panel: its own state, and one function per section.
+struct Panel {
+  std::vector<render::Tf2dWidget> tf_widgets = {render::Tf2dWidget{}};
+  char search[64] = "";
+  float clip_offset = 0.0f;
+};
+
+// Mode, window, opacity, slices per voxel, iso value, jitter, the clip plane.
+void panel_render_params(State& state, Panel& panel, const render::LevelGeometry& g0) {
+  const char* modes[] = {"colour", "ct", "mip", "average", "iso", "labels", "mpr", "tf2d"};
+  int mode = int(state.params.mode);
+  if (ImGui::Combo("mode (1-8)", &mode, modes, 8)) state.params.mode = render::Mode(mode);
+  float wc = float(state.params.window_center_hu), ww = float(state.params.window_width_hu);
+  if (ImGui::SliderFloat("level (HU)", &wc, -1000, 2000)) state.params.window_center_hu = wc;
+  if (ImGui::SliderFloat("window (HU)", &ww, 1, 4000)) state.params.window_width_hu = ww;
+  float op = float(state.params.opacity), spv = float(state.params.slices_per_voxel);
+  float iso = float(state.params.iso_hu);
+  if (ImGui::SliderFloat("opacity", &op, 0, 4)) state.params.opacity = op;
+  if (ImGui::SliderFloat("slices/voxel", &spv, 0.25f, 8)) state.params.slices_per_voxel = spv;
+  if (ImGui::SliderFloat("iso (HU)", &iso, -1000, 2000)) state.params.iso_hu = iso;
+  ImGui::Checkbox("jitter (J)", &state.params.jitter);
+  ImGui::Checkbox("clip plane", &state.params.clip);
+  if (state.params.clip) {
+    float n[3] = {float(state.params.clip_normal.x), float(state.params.clip_normal.y),
+                  float(state.params.clip_normal.z)};
+    if (ImGui::SliderFloat3("clip normal", n, -1, 1))
+      state.params.clip_normal = render::normalize_or({n[0], n[1], n[2]}, {1, 0, 0});
+    ImGui::SliderFloat("clip offset (mm)", &panel.clip_offset, -500, 500);
+    state.params.clip_d =
+        render::dot(state.params.clip_normal, g0.box().centre()) + panel.clip_offset;
+  }
+}
+
+// Frame time, the bricks drawn per level, skipped, culled and loading, GPU memory, lost slices.
+void panel_status(const FrameResult& frame, double frame_ms, int levels, const BrickCache& cache,
+                  std::int64_t max_gpu_mb, const std::vector<std::int64_t>& lost) {
+  int per_level[64] = {0};
+  for (const render::BrickKey& k : frame.plan.draw)
+    per_level[std::min(k.level, 63)]++;
+  std::string mix;
+  for (int l = 0; l < levels && l < 64; ++l)
+    if (per_level[l]) mix += cat(mix.empty() ? "" : " ", "L", l, ":", per_level[l]);
+  const BrickCacheStats& cs = cache.stats();
+  ImGui::Text("frame %.1f ms; bricks %zu (%s)", frame_ms, frame.plan.draw.size(), mix.c_str());
+  ImGui::Text("skipped (empty) %lld, culled %lld, loading %zu", (long long)frame.plan.skipped,
+              (long long)frame.plan.culled, frame.plan.missing.size());
+  ImGui::Text("GPU %.0f / %lld MB", cs.resident_bytes / 1048576.0, (long long)max_gpu_mb);
+  if (!lost.empty()) {
+    std::string list;
+    for (std::size_t i = 0; i < lost.size() && i < 12; ++i)
+      list += cat(i ? ", " : "", lost[i]);
+    if (lost.size() > 12) list += ", ...";
+    ImGui::TextWrapped(
+        "%zu lost slices (black in the file) are shown interpolated from their "
+        "neighbours (display only): z = %s",
+        lost.size(), list.c_str());
+  }
+}
+
+// The 2-D transfer function's widgets (HU range, gradient range, colour) and its preview.
+void panel_tf2d(State& state, Panel& panel) {
+  std::vector<render::Tf2dWidget>& tf_widgets = panel.tf_widgets;
+  bool changed = false;
+  for (std::size_t i = 0; i < tf_widgets.size(); ++i) {
+    render::Tf2dWidget& w = tf_widgets[i];
+    ImGui::PushID(int(i));
+    float v[2] = {float(w.value_lo), float(w.value_hi)};
+    float g[2] = {float(w.gradient_lo), float(w.gradient_hi)};
+    float c[4] = {w.colour.r, w.colour.g, w.colour.b, w.colour.a};
+    if (ImGui::DragFloat2("HU range", v, 5.0f, -1000, 3000)) {
+      w.value_lo = v[0];
+      w.value_hi = std::max(v[1], v[0] + 1);
+      changed = true;
+    }
+    if (ImGui::DragFloat2("|gradient| range", g, 1.0f, 0, 400)) {
+      w.gradient_lo = g[0];
+      w.gradient_hi = std::max(g[1], g[0]);
+      changed = true;
+    }
+    if (ImGui::ColorEdit4("colour, opacity", c)) {
+      w.colour = {c[0], c[1], c[2], c[3]};
+      changed = true;
+    }
+    if (ImGui::Button("remove")) {
+      tf_widgets.erase(tf_widgets.begin() + std::ptrdiff_t(i));
+      changed = true;
+      ImGui::PopID();
+      break;
+    }
+    ImGui::Separator();
+    ImGui::PopID();
+  }
+  if (ImGui::Button("add widget")) {
+    tf_widgets.push_back(render::Tf2dWidget{});
+    changed = true;
+  }
+  if (changed) state.params.tf2d = render::make_tf2d(tf_widgets);
+  // Preview: value to the right, gradient magnitude upwards, colour × opacity.
+  ImDrawList* dl = ImGui::GetWindowDrawList();
+  ImVec2 o = ImGui::GetCursorScreenPos();
+  const float cw = 2.5f, ch = 2.5f;
+  const render::TransferFunction2D& tf = state.params.tf2d;
+  for (int j = 0; j < render::TransferFunction2D::kGradients; j += 2)
+    for (int i = 0; i < render::TransferFunction2D::kValues; i += 2) {
+      const render::Rgba& e =
+          tf.table[std::size_t(j) * render::TransferFunction2D::kValues + std::size_t(i)];
+      ImU32 col = IM_COL32(int(255 * e.r * e.a), int(255 * e.g * e.a), int(255 * e.b * e.a), 255);
+      float x = o.x + cw * float(i / 2), y = o.y + ch * float(31 - j / 2);
+      dl->AddRectFilled(ImVec2(x, y), ImVec2(x + cw, y + ch), col);
+    }
+  ImGui::Dummy(ImVec2(cw * 64, ch * 32));
+  ImGui::Text("HU %.0f .. %.0f (x), |gradient| 0 .. %.0f HU/mm (y)", tf.value_min, tf.value_max,
+              tf.gradient_max);
+}
+
+// The segments list with a search box; picking one highlights it in labels mode.
+void panel_segments(State& state, Panel& panel, const std::vector<render::Label>& labels) {
+  ImGui::InputText("search", panel.search, sizeof(panel.search));
+  ImGui::BeginChild("segments", ImVec2(0, 200), true);
+  if (ImGui::Selectable("(none)", state.params.highlight_label < 0))
+    state.params.highlight_label = -1;
+  for (const render::Label& l : labels) {
+    std::string name = std::to_string(l.id) + " " + l.name;
+    std::string low = name, key = panel.search;
+    std::transform(low.begin(), low.end(), low.begin(), ::tolower);
+    std::transform(key.begin(), key.end(), key.begin(), ::tolower);
+    if (!key.empty() && low.find(key) == std::string::npos) continue;
+    if (ImGui::Selectable(name.c_str(), state.params.highlight_label == int(l.id))) {
+      state.params.highlight_label = int(l.id);
+      state.params.mode = render::Mode::kLabels;
+    }
+  }
+  ImGui::EndChild();
+}
+#endif
+
 }  // namespace
 
 int run_window(const ViewOptions& options) {
@@ -216,7 +415,6 @@ int run_window(const ViewOptions& options) {
   BrickCache cache(*source, options.max_gpu_mb << 20, options.threads);
   const render::PlanOptions base_plan = plan_options(options, levels);
   SliceRenderer renderer;
-  std::vector<render::Tf2dWidget> tf_widgets = {render::Tf2dWidget{}};
 
 #ifdef VISPACK_HAVE_IMGUI
   IMGUI_CHECKVERSION();
@@ -232,61 +430,23 @@ int run_window(const ViewOptions& options) {
   ImGui_ImplGlfw_InitForOpenGL(window, true);
   ImGui_ImplOpenGL3_Init("#version 330 core");
   ImGuiGuard imgui_guard;
-  char search[64] = "";
-  float clip_offset = 0.0f;
+  Panel panel;
 #endif
 
   std::size_t next_command = 0;
   double frame_ms = 0;
-  for (int frame = 0; !glfwWindowShouldClose(window); ++frame) {
-    if (options.max_frames > 0 && frame >= options.max_frames) break;
+  for (int frame_index = 0; !glfwWindowShouldClose(window); ++frame_index) {
+    if (options.max_frames > 0 && frame_index >= options.max_frames) break;
     glfwPollEvents();
     // Script: view changes run at once; wait/screenshot hold until the view is complete.
-    for (; next_command < script.size(); ++next_command) {
-      const Command& c = script[next_command];
-      if (c.verb == "wait" || c.verb == "screenshot") break;
-      if (c.verb == "azimuth") state.orbit.azimuth_deg = std::stod(c.arg);
-      if (c.verb == "elevation") state.orbit.elevation_deg = std::stod(c.arg);
-      if (c.verb == "zoom") state.orbit.zoom = std::stod(c.arg);
-      if (c.verb == "mode") state.params.mode = *render::mode_from_name(c.arg);
-    }
+    apply_view_commands(script, next_command, state);
     if (!script.empty() && next_command >= script.size()) break;
     int fw = 1, fh = 1;
     glfwGetFramebufferSize(window, &fw, &fh);
-    bool moving = now() - state.last_change < 0.25 || state.button >= 0;
-    // Lower resolution and fewer slices while the camera moves; full quality when it stops.
-    int scale = moving ? 2 : 1;
-    render::RenderParams params = state.params;
-    if (moving) params.slices_per_voxel = std::max(params.slices_per_voxel / 2, 0.5);
-    render::OrbitParams orbit = state.orbit;
-    orbit.target = g0.box().centre();
-    params.mpr_target = orbit.target + orbit.pan_mm;
-    render::Camera cam =
-        render::orbit_camera(orbit, g0.box(), std::max(fw / scale, 1), std::max(fh / scale, 1));
-    // Bricks paged by view: plan with what is resident, ask for what is missing (coarsest
-    // first), upload for at most ~10 ms, draw.
-    const unsigned channels = render::channels_for(params, tree.present_channels());
-    render::PlanOptions popt = base_plan;
-    if (moving) popt.lod_pixels *= 2;
-    render::BrickPlan plan =
-        render::plan_bricks(tree, cam, params, popt, channels,
-                            [&](const render::BrickKey& k) { return cache.resident(k, channels); });
-    cache.request(plan.missing, channels);
-    std::size_t bad_before = cache.stats().bad_brick_errors.size();
-    cache.pump(0.010);
-    for (std::size_t i = bad_before; i < cache.stats().bad_brick_errors.size(); ++i)
-      std::fprintf(stderr, "vispack-view: warning: %s; shown as missing\n",
-                   cache.stats().bad_brick_errors[i].c_str());
-    cache.use(plan.draw);
-    double t0 = now();
-    renderer.render_bricks(cache, tree, plan, cam, params);
-    glClearColor(0, 0, 0, 1);
-    glBindFramebuffer(GL_FRAMEBUFFER, 0);
-    glClear(GL_COLOR_BUFFER_BIT);
-    renderer.resolve(0, 0, 0, fw, fh);
-    glFinish();
-    frame_ms = 0.9 * frame_ms + 0.1 * (now() - t0) * 1e3;
-    if (next_command < script.size() && !moving && plan.missing.empty() && !cache.busy()) {
+    const FrameResult frame = draw_frame(state, g0, tree, cache, base_plan, renderer, fw, fh);
+    frame_ms = 0.9 * frame_ms + 0.1 * frame.render_ms;
+    if (next_command < script.size() && !frame.moving && frame.plan.missing.empty() &&
+        !cache.busy()) {
       const Command& c = script[next_command];
       if (c.verb == "screenshot") render::write_png(c.arg, read_window(fw, fh));
       ++next_command;
@@ -298,51 +458,8 @@ int run_window(const ViewOptions& options) {
     ImGui::NewFrame();
     state.want_mouse = ImGui::GetIO().WantCaptureMouse;
     ImGui::Begin("vispack");
-    const char* modes[] = {"colour", "ct", "mip", "average", "iso", "labels", "mpr", "tf2d"};
-    int mode = int(state.params.mode);
-    if (ImGui::Combo("mode (1-8)", &mode, modes, 8)) state.params.mode = render::Mode(mode);
-    float wc = float(state.params.window_center_hu), ww = float(state.params.window_width_hu);
-    if (ImGui::SliderFloat("level (HU)", &wc, -1000, 2000)) state.params.window_center_hu = wc;
-    if (ImGui::SliderFloat("window (HU)", &ww, 1, 4000)) state.params.window_width_hu = ww;
-    float op = float(state.params.opacity), spv = float(state.params.slices_per_voxel);
-    float iso = float(state.params.iso_hu);
-    if (ImGui::SliderFloat("opacity", &op, 0, 4)) state.params.opacity = op;
-    if (ImGui::SliderFloat("slices/voxel", &spv, 0.25f, 8)) state.params.slices_per_voxel = spv;
-    if (ImGui::SliderFloat("iso (HU)", &iso, -1000, 2000)) state.params.iso_hu = iso;
-    ImGui::Checkbox("jitter (J)", &state.params.jitter);
-    ImGui::Checkbox("clip plane", &state.params.clip);
-    if (state.params.clip) {
-      float n[3] = {float(state.params.clip_normal.x), float(state.params.clip_normal.y),
-                    float(state.params.clip_normal.z)};
-      if (ImGui::SliderFloat3("clip normal", n, -1, 1))
-        state.params.clip_normal = render::normalize_or({n[0], n[1], n[2]}, {1, 0, 0});
-      ImGui::SliderFloat("clip offset (mm)", &clip_offset, -500, 500);
-      state.params.clip_d = render::dot(state.params.clip_normal, g0.box().centre()) + clip_offset;
-    }
-    {
-      int per_level[64] = {0};
-      for (const render::BrickKey& k : plan.draw)
-        per_level[std::min(k.level, 63)]++;
-      std::string mix;
-      for (int l = 0; l < levels && l < 64; ++l)
-        if (per_level[l]) mix += cat(mix.empty() ? "" : " ", "L", l, ":", per_level[l]);
-      const BrickCacheStats& cs = cache.stats();
-      ImGui::Text("frame %.1f ms; bricks %zu (%s)", frame_ms, plan.draw.size(), mix.c_str());
-      ImGui::Text("skipped (empty) %lld, culled %lld, loading %zu", (long long)plan.skipped,
-                  (long long)plan.culled, plan.missing.size());
-      ImGui::Text("GPU %.0f / %lld MB", cs.resident_bytes / 1048576.0,
-                  (long long)options.max_gpu_mb);
-    }
-    if (!lost.empty()) {
-      std::string list;
-      for (std::size_t i = 0; i < lost.size() && i < 12; ++i)
-        list += cat(i ? ", " : "", lost[i]);
-      if (lost.size() > 12) list += ", ...";
-      ImGui::TextWrapped(
-          "%zu lost slices (black in the file) are shown interpolated from their "
-          "neighbours (display only): z = %s",
-          lost.size(), list.c_str());
-    }
+    panel_render_params(state, panel, g0);
+    panel_status(frame, frame_ms, levels, cache, options.max_gpu_mb, lost);
     if (state.params.mode == render::Mode::kLabels) {
       const char* shadings[] = {"flat", "modulated by intensity", "ramp per segment"};
       int sh = int(state.params.label_shading);
@@ -350,78 +467,9 @@ int run_window(const ViewOptions& options) {
         state.params.label_shading = render::LabelShading(sh);
     }
     if (state.params.mode == render::Mode::kTf2d &&
-        ImGui::CollapsingHeader("2-D transfer function", ImGuiTreeNodeFlags_DefaultOpen)) {
-      bool changed = false;
-      for (std::size_t i = 0; i < tf_widgets.size(); ++i) {
-        render::Tf2dWidget& w = tf_widgets[i];
-        ImGui::PushID(int(i));
-        float v[2] = {float(w.value_lo), float(w.value_hi)};
-        float g[2] = {float(w.gradient_lo), float(w.gradient_hi)};
-        float c[4] = {w.colour.r, w.colour.g, w.colour.b, w.colour.a};
-        if (ImGui::DragFloat2("HU range", v, 5.0f, -1000, 3000)) {
-          w.value_lo = v[0];
-          w.value_hi = std::max(v[1], v[0] + 1);
-          changed = true;
-        }
-        if (ImGui::DragFloat2("|gradient| range", g, 1.0f, 0, 400)) {
-          w.gradient_lo = g[0];
-          w.gradient_hi = std::max(g[1], g[0]);
-          changed = true;
-        }
-        if (ImGui::ColorEdit4("colour, opacity", c)) {
-          w.colour = {c[0], c[1], c[2], c[3]};
-          changed = true;
-        }
-        if (ImGui::Button("remove")) {
-          tf_widgets.erase(tf_widgets.begin() + std::ptrdiff_t(i));
-          changed = true;
-          ImGui::PopID();
-          break;
-        }
-        ImGui::Separator();
-        ImGui::PopID();
-      }
-      if (ImGui::Button("add widget")) {
-        tf_widgets.push_back(render::Tf2dWidget{});
-        changed = true;
-      }
-      if (changed) state.params.tf2d = render::make_tf2d(tf_widgets);
-      // Preview: value to the right, gradient magnitude upwards, colour × opacity.
-      ImDrawList* dl = ImGui::GetWindowDrawList();
-      ImVec2 o = ImGui::GetCursorScreenPos();
-      const float cw = 2.5f, ch = 2.5f;
-      const render::TransferFunction2D& tf = state.params.tf2d;
-      for (int j = 0; j < render::TransferFunction2D::kGradients; j += 2)
-        for (int i = 0; i < render::TransferFunction2D::kValues; i += 2) {
-          const render::Rgba& e =
-              tf.table[std::size_t(j) * render::TransferFunction2D::kValues + std::size_t(i)];
-          ImU32 col =
-              IM_COL32(int(255 * e.r * e.a), int(255 * e.g * e.a), int(255 * e.b * e.a), 255);
-          float x = o.x + cw * float(i / 2), y = o.y + ch * float(31 - j / 2);
-          dl->AddRectFilled(ImVec2(x, y), ImVec2(x + cw, y + ch), col);
-        }
-      ImGui::Dummy(ImVec2(cw * 64, ch * 32));
-      ImGui::Text("HU %.0f .. %.0f (x), |gradient| 0 .. %.0f HU/mm (y)", tf.value_min, tf.value_max,
-                  tf.gradient_max);
-    }
-    if (!labels.empty()) {
-      ImGui::InputText("search", search, sizeof(search));
-      ImGui::BeginChild("segments", ImVec2(0, 200), true);
-      if (ImGui::Selectable("(none)", state.params.highlight_label < 0))
-        state.params.highlight_label = -1;
-      for (const render::Label& l : labels) {
-        std::string name = std::to_string(l.id) + " " + l.name;
-        std::string low = name, key = search;
-        std::transform(low.begin(), low.end(), low.begin(), ::tolower);
-        std::transform(key.begin(), key.end(), key.begin(), ::tolower);
-        if (!key.empty() && low.find(key) == std::string::npos) continue;
-        if (ImGui::Selectable(name.c_str(), state.params.highlight_label == int(l.id))) {
-          state.params.highlight_label = int(l.id);
-          state.params.mode = render::Mode::kLabels;
-        }
-      }
-      ImGui::EndChild();
-    }
+        ImGui::CollapsingHeader("2-D transfer function", ImGuiTreeNodeFlags_DefaultOpen))
+      panel_tf2d(state, panel);
+    if (!labels.empty()) panel_segments(state, panel, labels);
     ImGui::End();
     ImGui::Render();
     ImGui_ImplOpenGL3_RenderDrawData(ImGui::GetDrawData());
