@@ -456,6 +456,591 @@ Rigid relative(const Rigid& a, const Rigid& b, cv::Point2d c) {
                            c);
 }
 
+// Anchor mode "none" or "fiducials": the slice-0-referenced chain (plus fiducial groups); a
+// person's fixed transform is an edge from the reference (T_0 = identity) with an overwhelming
+// weight. `over[k]`: slice k's override, if any.
+StackSolve solve_without_ct(const std::vector<SlicePairs>& pairs, cv::Size size,
+                            const StackSolveOptions& options,
+                            const std::vector<const SliceOverride*>& over) {
+  const int n = int(pairs.size());
+  StackSolve result;
+  auto usable = [&](int k) {
+    return !pairs[std::size_t(k)].black && !pairs[std::size_t(k)].duplicate_of;
+  };
+  std::vector<SlicePairs> p = pairs;
+  for (const auto& o : options.overrides)
+    if (o.transform && o.index > 0 && usable(o.index))
+      p[std::size_t(o.index)].edges.push_back({0, o.index, *o.transform, kFixedWeight});
+  int groups = 0;
+  if (options.anchor == "none") {
+    for (auto& r : p)
+      r.fiducials.clear();
+  }
+  result.slices = chain_transforms(p, size, options.jump_px, &groups);
+  result.fiducial_groups = groups;
+  result.frame = groups > 0 ? "fiducials" : "slice0";
+  if (options.anchor == "none" && n > 2) {
+    // Regularised: without an absolute reference the drift's lowest frequencies are not
+    // observable, and integrating the pairs would turn the anatomy's apparent motion into
+    // drift without bound. A zero-phase exponential low-pass (window 100 slices) of the
+    // chained transforms is subtracted: what the pairs measure locally stays, a steady bias
+    // (a ramp) is removed in the interior and nothing integrates beyond ~100 slices.
+    constexpr double kWindow = 100.0;
+    const double a = 1.0 / kWindow;
+    std::vector<Rigid> t(static_cast<std::size_t>(n));
+    for (int k = 0; k < n; ++k)
+      t[std::size_t(k)] = result.slices[std::size_t(k)].rigid;
+    // Exponential low-pass, forward and backward (zero phase), subtracted from k >= 1.
+    std::vector<Rigid> lp = t;
+    for (int pass = 0; pass < 2; ++pass) {
+      const int start = pass == 0 ? 1 : n - 2, step = pass == 0 ? 1 : -1;
+      for (int k = start; k >= 0 && k < n; k += step) {
+        const Rigid& prev = lp[std::size_t(k - step)];
+        Rigid& cur = lp[std::size_t(k)];
+        cur = {prev.rotation_deg + a * (cur.rotation_deg - prev.rotation_deg),
+               prev.dx_px + a * (cur.dx_px - prev.dx_px),
+               prev.dy_px + a * (cur.dy_px - prev.dy_px)};
+      }
+    }
+    for (int k = 1; k < n; ++k) {
+      if (over[std::size_t(k)] && over[std::size_t(k)]->transform) continue;
+      Rigid& s = result.slices[std::size_t(k)].rigid;
+      s.rotation_deg -= lp[std::size_t(k)].rotation_deg - lp[0].rotation_deg;
+      s.dx_px -= lp[std::size_t(k)].dx_px - lp[0].dx_px;
+      s.dy_px -= lp[std::size_t(k)].dy_px - lp[0].dy_px;
+    }
+  }
+  for (const auto& o : options.overrides) {
+    if (o.transform) {
+      result.slices[std::size_t(o.index)].rigid = *o.transform;
+    }
+    if (o.jump) result.slices[std::size_t(o.index)].jump = true;
+  }
+  return result;
+}
+
+// Anchor mode "ct" (the terms at the top of solve.h). The unknowns are the usable slices
+// ("nodes": neither black nor a duplicate); the solve is built step by step: nodes, anchors,
+// the pair edges kept, the cuts, then two rounds (the second with fiducial groups, where tubes
+// are seen) of rotations then shifts, each reweighted kRobustPasses times; write_slices gives
+// every slice its transform.
+class CtStackSolver {
+ public:
+  CtStackSolver(const std::vector<SlicePairs>& pairs, cv::Size size,
+                const StackSolveOptions& options, const std::vector<const SliceOverride*>& over,
+                StackSolve& result)
+      : pairs_(pairs),
+        size_(size),
+        options_(options),
+        over_(over),
+        result_(result),
+        n_(int(pairs.size())),
+        c_(image_centre(size)),
+        r0_(0.25 * 0.5 * (size.width + size.height)) {
+    make_nodes();
+    gather_anchors();
+    reject_pairs();
+    find_cuts();
+  }
+
+  void solve();
+  void write_slices();
+
+ private:
+  struct Anchor {
+    Rigid t;
+    double w_shift = 0, w_rot = 0, sigma = 1;
+    bool fixed = false;
+  };
+  struct FiducialTerm {
+    int group, node;
+    Rigid fit;
+  };
+
+  bool usable(int k) const {
+    return !pairs_[std::size_t(k)].black && !pairs_[std::size_t(k)].duplicate_of;
+  }
+  const std::optional<AnchorEstimate>& record(int i) const {
+    return pairs_[std::size_t(node_slice_[std::size_t(i)])].anchor;
+  }
+  double gap(int i) const {
+    return double(node_slice_[std::size_t(i)] - node_slice_[std::size_t(i - 1)]);
+  }
+  double pair_sigma(int i) const;
+  double pair_lever_at(int i) const;
+  bool tiny_body(int i) const;
+  bool confident_anchor(int i) const;
+  bool curvature_ok(int i) const {  // terms around node i use edges into i and i+1
+    return i >= 1 && i + 1 < m_ && primary_[std::size_t(i)] && primary_[std::size_t(i + 1)];
+  }
+  bool smooth_ok(int i) const {
+    return i >= 1 && i + 1 < m_ && !cut_[std::size_t(i)] && !cut_[std::size_t(i + 1)] &&
+           i - 1 >= first_anchored_ && i + 1 <= last_anchored_;
+  }
+
+  void make_nodes();
+  void gather_anchors();
+  void reject_pairs();
+  void find_cuts();
+  std::vector<double> solve_rotations() const;
+  std::vector<double> solve_shifts(const std::vector<double>& theta) const;
+  void reweight();
+
+  const std::vector<SlicePairs>& pairs_;
+  const cv::Size size_;
+  const StackSolveOptions& options_;
+  const std::vector<const SliceOverride*>& over_;
+  StackSolve& result_;
+  const int n_;
+  const cv::Point2d c_;
+  const double r0_;  // a "large" body radius, px: a quarter of the slice's mean edge
+
+  std::vector<int> node_slice_;  // node → stack index
+  std::vector<int> slice_node_;  // stack index → node (−1: not solved)
+  int m_ = 0;
+  std::vector<Rigid> solved_;
+  // Primary pair edge into each node (from the previous node), unless cut or rejected.
+  std::vector<std::optional<PairEdge>> primary_;
+  std::vector<std::optional<Anchor>> anchor_;  // anchors and fixed transforms
+  double nominal_wa_ = 0.0;  // 1/σ_a² of a confident anchor (for the first-order pair weight)
+  std::vector<double> radius_;
+  double pair_lever_ = 0, w1_shift_ = 0, w1_rot_ = 0;
+  std::vector<bool> cut_;  // cut_[i]: between node i−1 and i
+  int first_anchored_ = 0, last_anchored_ = -1;
+  bool any_anchor_ = false;
+  // Robust weights (Cauchy) of anchors and curvature terms, per component (rotation, shift),
+  // and the noise scale factors of the four classes (reweight()).
+  std::vector<double> ra_rot_, ra_shift_, rc_rot_, rc_shift_;
+  double f_ar_ = 1.0, f_as_ = 1.0, f_cr_ = 1.0, f_cs_ = 1.0;
+  std::vector<FiducialTerm> fid_;
+  int groups_ = 0;
+};
+
+void CtStackSolver::make_nodes() {
+  slice_node_.assign(static_cast<std::size_t>(n_), -1);
+  for (int k = 0; k < n_; ++k)
+    if (usable(k)) slice_node_[std::size_t(k)] = int(node_slice_.size()), node_slice_.push_back(k);
+  m_ = int(node_slice_.size());
+  solved_.resize(static_cast<std::size_t>(m_));
+  primary_.resize(static_cast<std::size_t>(m_));
+  for (int i = 1; i < m_; ++i) {
+    const int k = node_slice_[std::size_t(i)];
+    if (over_[std::size_t(k)] && over_[std::size_t(k)]->jump) continue;  // a person's cut
+    for (const auto& e : pairs_[std::size_t(k)].edges)
+      if (e.from == node_slice_[std::size_t(i - 1)]) {
+        primary_[std::size_t(i)] = e;
+        break;
+      }
+  }
+}
+
+void CtStackSolver::gather_anchors() {
+  anchor_.resize(static_cast<std::size_t>(m_));
+  for (int i = 0; i < m_; ++i) {
+    const int k = node_slice_[std::size_t(i)];
+    const SliceOverride* o = over_[std::size_t(k)];
+    if (o && o->transform) {
+      anchor_[std::size_t(i)] = Anchor{*o->transform, kFixedWeight, kFixedWeight, 1e-4, true};
+      continue;
+    }
+    const auto& a = pairs_[std::size_t(k)].anchor;
+    if (!a || !a->ok || a->confidence <= 0.0 || (o && o->exclude_anchor)) continue;
+    const double sigma = std::max(a->sigma_px, 1e-3);
+    const double lever = std::max(a->lever_px, 0.5) * kPi / 180.0;  // px per degree
+    anchor_[std::size_t(i)] = Anchor{a->transform, a->confidence / (sigma * sigma),
+                                     a->confidence * lever * lever / (sigma * sigma), sigma, false};
+    nominal_wa_ = std::max(nominal_wa_, 1.0 / (sigma * sigma));
+  }
+  if (nominal_wa_ == 0.0) nominal_wa_ = 1.0;
+  // Pair terms: σ_p for a body of radius ≥ R0 (a quarter of the mean edge); a smaller body
+  // (the stack's ends) carries less information and often locks onto the gel: σ grows as
+  // (R0 / r)², and the rotation's lever is the body's radius r (from the CT anchor's record;
+  // R0 without one).
+  pair_lever_ = r0_ * kPi / 180.0;
+  radius_.assign(static_cast<std::size_t>(m_), r0_);
+  for (int i = 0; i < m_; ++i) {
+    const auto& a = record(i);
+    if (a && a->radius_px > 0.0) radius_[std::size_t(i)] = std::max(5.0, a->radius_px);
+  }
+  w1_shift_ = kFirstOrderShare * nominal_wa_;
+  w1_rot_ = w1_shift_ * pair_lever_ * pair_lever_;
+  first_anchored_ = m_;
+  for (int i = 0; i < m_; ++i)
+    if (anchor_[std::size_t(i)]) first_anchored_ = std::min(first_anchored_, i), last_anchored_ = i;
+  // With no anchor at all, the stack is still solved (pairs only) but unanchored: node 0 pinned.
+  for (const auto& a : anchor_)
+    any_anchor_ = any_anchor_ || bool(a);
+}
+
+double CtStackSolver::pair_sigma(int i) const {  // σ (px) of the curvature term around node i
+  const double r =
+      std::min({radius_[std::size_t(i - 1)], radius_[std::size_t(i)], radius_[std::size_t(i + 1)]});
+  return kPairSigmaPx * std::max(1.0, (r0_ / r) * (r0_ / r));
+}
+
+double CtStackSolver::pair_lever_at(int i) const {
+  return std::min({radius_[std::size_t(i - 1)], radius_[std::size_t(i)],
+                   radius_[std::size_t(i + 1)], r0_}) *
+         kPi / 180.0;
+}
+
+// A pair edge between slices of which one shows (almost) no body measures gel against gel:
+// dropped (such slices follow their neighbours through the smoothness prior instead).
+bool CtStackSolver::tiny_body(int i) const {
+  const auto& a = record(i);
+  return a && (a->body_fraction < kTinyBodyFraction || a->radius_px < 0.25 * r0_);
+}
+
+// A pair edge that claims a jump (motion > jump_px) is kept only where two confident anchors
+// can confirm it (reject_pairs): at the ends of the stack a pair that lost track claims jumps
+// that are not there.
+bool CtStackSolver::confident_anchor(int i) const {
+  const auto& a = anchor_[std::size_t(i)];
+  if (!a) return false;
+  if (a->fixed) return true;
+  return record(i)->confidence >= 0.3;
+}
+
+void CtStackSolver::reject_pairs() {
+  for (int i = 1; i < m_; ++i) {
+    if (!primary_[std::size_t(i)]) continue;
+    const bool unverified_jump =
+        !(confident_anchor(i - 1) && confident_anchor(i)) &&
+        rigid_motion_px(primary_[std::size_t(i)]->relative, size_) > options_.jump_px;
+    if (tiny_body(i - 1) || tiny_body(i) || unverified_jump) {
+      primary_[std::size_t(i)].reset();
+      ++result_.pairs_rejected;
+    }
+  }
+  // Gate: a pair edge that contradicts the two anchors it joins is dropped before the solve
+  // (a pair on a small patch of body at the stack's end can lock onto the gel and report tens
+  // of degrees). The disagreement is measured at the body (shift at the centre plus rotation
+  // times the smaller radius of gyration) against 1 px + 3σ of the anchors' difference.
+  for (int i = 1; i < m_; ++i) {
+    if (!primary_[std::size_t(i)]) continue;
+    const auto& a0 = anchor_[std::size_t(i - 1)];
+    const auto& a1 = anchor_[std::size_t(i)];
+    const auto& rec0 = record(i - 1);
+    const auto& rec1 = record(i);
+    if (!a0 || !a1) continue;
+    const double conf =
+        std::min(a0->fixed ? 1.0 : rec0->confidence, a1->fixed ? 1.0 : rec1->confidence);
+    if (conf < 0.3) continue;
+    const double radius = std::max(
+        10.0, std::min(a0->fixed ? 1e3 : rec0->radius_px, a1->fixed ? 1e3 : rec1->radius_px));
+    const Rigid measured = relative(a1->t, a0->t, c_);
+    const Rigid& p = primary_[std::size_t(i)]->relative;
+    const double disagree = std::hypot(p.dx_px - measured.dx_px, p.dy_px - measured.dy_px) +
+                            std::abs(p.rotation_deg - measured.rotation_deg) * kPi / 180.0 * radius;
+    const double gate = 1.0 + 3.0 * std::hypot(a0->sigma, a1->sigma) / std::sqrt(conf);
+    if (disagree > gate) {
+      primary_[std::size_t(i)].reset();
+      ++result_.pairs_rejected;
+    }
+  }
+}
+
+// Smoothness prior (weak; what decides where neither anchors nor pairs do: the ends of the
+// stack): the second difference of T is ~0 within σ_s, cut at a jump: one a person marked,
+// or where the motion exceeds jump_px, judged by the two anchors when both are confident
+// (a pair on a small patch of body can report a false jump) and by the pair otherwise.
+void CtStackSolver::find_cuts() {
+  cut_.assign(static_cast<std::size_t>(m_), false);
+  for (int i = 1; i < m_; ++i) {
+    const int k = node_slice_[std::size_t(i)];
+    if (over_[std::size_t(k)] && over_[std::size_t(k)]->jump) {
+      cut_[std::size_t(i)] = true;
+      continue;
+    }
+    const auto& a0 = anchor_[std::size_t(i - 1)];
+    const auto& a1 = anchor_[std::size_t(i)];
+    const auto& rec0 = record(i - 1);
+    const auto& rec1 = pairs_[std::size_t(k)].anchor;
+    const bool confident = a0 && a1 && (a0->fixed || rec0->confidence >= 0.3) &&
+                           (a1->fixed || rec1->confidence >= 0.3);
+    if (confident) {
+      // Judged at the body (shift at the centre + rotation × lever), where the anchors are
+      // accurate, not at the frame's corners, where their rotation noise is magnified.
+      const Rigid d = relative(a1->t, a0->t, c_);
+      const double lever =
+          std::min(a0->fixed ? r0_ : rec0->lever_px, a1->fixed ? r0_ : rec1->lever_px);
+      cut_[std::size_t(i)] =
+          std::hypot(d.dx_px, d.dy_px) + std::abs(d.rotation_deg) * kPi / 180.0 * lever >
+          options_.jump_px;
+    } else if (primary_[std::size_t(i)]) {
+      cut_[std::size_t(i)] =
+          rigid_motion_px(primary_[std::size_t(i)]->relative, size_) > options_.jump_px;
+    }
+  }
+  ra_rot_.assign(static_cast<std::size_t>(m_), 1.0);
+  ra_shift_ = ra_rot_;
+  rc_rot_ = ra_rot_;
+  rc_shift_ = ra_rot_;
+}
+
+// The rotations θ of the nodes (then of the fiducial groups), the shifts held out.
+std::vector<double> CtStackSolver::solve_rotations() const {
+  const double ws_rot = 1.0 / (kSmoothSigmaDeg * kSmoothSigmaDeg);
+  const double ww_rot = 1.0 / (kWalkSigmaDeg * kWalkSigmaDeg);
+  const double wf_shift = 1.0 / (kFiducialSigmaPx * kFiducialSigmaPx);
+  const double wf_rot = wf_shift * std::pow(2.0 * r0_ * kPi / 180.0, 2);
+  LeastSquares rot(m_, 2, groups_);
+  for (const auto& f : fid_)
+    rot.row({{f.node, 1.0}, {m_ + f.group, -1.0}}, f.fit.rotation_deg, wf_rot);
+  if (!any_anchor_ && m_ > 0) rot.row({{0, 1.0}}, 0.0, kFixedWeight);
+  for (int i = 0; i < m_; ++i) {
+    if (anchor_[std::size_t(i)])
+      rot.row({{i, 1.0}}, anchor_[std::size_t(i)]->t.rotation_deg,
+              anchor_[std::size_t(i)]->w_rot * ra_rot_[std::size_t(i)] / (f_ar_ * f_ar_));
+    if (i >= 1 && primary_[std::size_t(i)]) {
+      const PairEdge& e = *primary_[std::size_t(i)];
+      rot.row({{i, 1.0}, {i - 1, -1.0}}, e.relative.rotation_deg, w1_rot_ * e.weight);
+    }
+    if (i >= 1 && !cut_[std::size_t(i)]) rot.row({{i, 1.0}, {i - 1, -1.0}}, 0.0, ww_rot / gap(i));
+    if (smooth_ok(i))
+      rot.row(
+          {{i + 1, 1.0 / gap(i + 1)}, {i, -1.0 / gap(i + 1) - 1.0 / gap(i)}, {i - 1, 1.0 / gap(i)}},
+          0.0, ws_rot);
+    if (curvature_ok(i)) {
+      const PairEdge& e1 = *primary_[std::size_t(i)];
+      const PairEdge& e2 = *primary_[std::size_t(i + 1)];
+      const double g1 = gap(i), g2 = gap(i + 1);
+      const double sl = pair_sigma(i) / pair_lever_at(i);  // degrees
+      const double w =
+          std::min(e1.weight, e2.weight) * rc_rot_[std::size_t(i)] / (sl * sl * f_cr_ * f_cr_);
+      rot.row({{i + 1, 1.0 / g2}, {i, -1.0 / g2 - 1.0 / g1}, {i - 1, 1.0 / g1}},
+              e2.relative.rotation_deg / g2 - e1.relative.rotation_deg / g1, w);
+    }
+  }
+  return rot.solve();
+}
+
+// The shifts d (x, y interleaved; then the fiducial groups'), the rotations `theta` fixed.
+std::vector<double> CtStackSolver::solve_shifts(const std::vector<double>& theta) const {
+  const double ws_shift = 1.0 / (kSmoothSigmaPx * kSmoothSigmaPx);
+  const double ww_shift = 1.0 / (kWalkSigmaPx * kWalkSigmaPx);
+  const double wf_shift = 1.0 / (kFiducialSigmaPx * kFiducialSigmaPx);
+  LeastSquares sh(2 * m_, 5, 2 * groups_);
+  if (!any_anchor_ && m_ > 0) {
+    sh.row({{0, 1.0}}, 0.0, kFixedWeight);
+    sh.row({{1, 1.0}}, 0.0, kFixedWeight);
+  }
+  auto rmat = [&](int i, int j) {  // R(θ_i − θ_j)
+    const double a = (theta[std::size_t(i)] - theta[std::size_t(j)]) * kPi / 180.0;
+    return cv::Matx22d(std::cos(a), -std::sin(a), std::sin(a), std::cos(a));
+  };
+  for (const auto& f : fid_) {
+    // d_k − R(θ_k − θ_g) d_g = e
+    const cv::Matx22d r = rmat(f.node, m_ + f.group);
+    const int g = 2 * m_ + 2 * f.group;
+    sh.row({{2 * f.node, 1.0}, {g, -r(0, 0)}, {g + 1, -r(0, 1)}}, f.fit.dx_px, wf_shift);
+    sh.row({{2 * f.node + 1, 1.0}, {g, -r(1, 0)}, {g + 1, -r(1, 1)}}, f.fit.dy_px, wf_shift);
+  }
+  for (int i = 0; i < m_; ++i) {
+    if (anchor_[std::size_t(i)]) {
+      const double w =
+          anchor_[std::size_t(i)]->w_shift * ra_shift_[std::size_t(i)] / (f_as_ * f_as_);
+      sh.row({{2 * i, 1.0}}, anchor_[std::size_t(i)]->t.dx_px, w);
+      sh.row({{2 * i + 1, 1.0}}, anchor_[std::size_t(i)]->t.dy_px, w);
+    }
+    if (i >= 1 && primary_[std::size_t(i)]) {
+      // d_i − R(θ_i − θ_{i−1}) d_{i−1} = e
+      const PairEdge& e = *primary_[std::size_t(i)];
+      const cv::Matx22d r = rmat(i, i - 1);
+      const double w = w1_shift_ * e.weight;
+      sh.row({{2 * i, 1.0}, {2 * (i - 1), -r(0, 0)}, {2 * (i - 1) + 1, -r(0, 1)}}, e.relative.dx_px,
+             w);
+      sh.row({{2 * i + 1, 1.0}, {2 * (i - 1), -r(1, 0)}, {2 * (i - 1) + 1, -r(1, 1)}},
+             e.relative.dy_px, w);
+    }
+    if (i >= 1 && !cut_[std::size_t(i)]) {
+      // d_i − R(θ_i − θ_{i−1}) d_{i−1} = 0: no motion between neighbours (random walk).
+      const cv::Matx22d r = rmat(i, i - 1);
+      const double w = ww_shift / gap(i);
+      sh.row({{2 * i, 1.0}, {2 * (i - 1), -r(0, 0)}, {2 * (i - 1) + 1, -r(0, 1)}}, 0.0, w);
+      sh.row({{2 * i + 1, 1.0}, {2 * (i - 1), -r(1, 0)}, {2 * (i - 1) + 1, -r(1, 1)}}, 0.0, w);
+    }
+    if (smooth_ok(i)) {
+      const double g1 = gap(i), g2 = gap(i + 1);
+      for (int row = 0; row < 2; ++row)
+        sh.row({{2 * (i + 1) + row, 1.0 / g2},
+                {2 * i + row, -1.0 / g2 - 1.0 / g1},
+                {2 * (i - 1) + row, 1.0 / g1}},
+               0.0, ws_shift);
+    }
+    if (curvature_ok(i)) {
+      // (d_{i+1} − R₂ d_i − e₂)/g₂ − (d_i − R₁ d_{i−1} − e₁)/g₁ = 0
+      const PairEdge& e1 = *primary_[std::size_t(i)];
+      const PairEdge& e2 = *primary_[std::size_t(i + 1)];
+      const double g1 = gap(i), g2 = gap(i + 1);
+      const cv::Matx22d r2 = rmat(i + 1, i), r1 = rmat(i, i - 1);
+      const double w = std::min(e1.weight, e2.weight) * rc_shift_[std::size_t(i)] /
+                       (pair_sigma(i) * pair_sigma(i) * f_cs_ * f_cs_);
+      for (int row = 0; row < 2; ++row) {
+        // Coefficients on d_{i+1}[row], d_i[0..1], d_{i−1}[0..1].
+        const double di0 = -r2(row, 0) / g2 - (row == 0 ? 1.0 : 0.0) / g1;
+        const double di1 = -r2(row, 1) / g2 - (row == 1 ? 1.0 : 0.0) / g1;
+        const double rhs = (row == 0 ? e2.relative.dx_px : e2.relative.dy_px) / g2 -
+                           (row == 0 ? e1.relative.dx_px : e1.relative.dy_px) / g1;
+        sh.row({{2 * (i + 1) + row, 1.0 / g2},
+                {2 * i, di0},
+                {2 * i + 1, di1},
+                {2 * (i - 1), r1(row, 0) / g1},
+                {2 * (i - 1) + 1, r1(row, 1) / g1}},
+               rhs, w);
+      }
+    }
+  }
+  return sh.solve();
+}
+
+// Noise levels from the data, then robust weights. Each class of measurement (anchor rotation,
+// anchor shift, pair-curvature rotation, pair-curvature shift) gets a scale factor f = 1.4826 ·
+// median of its normalised residuals (at least 1): where the anatomy makes pair estimates noisy
+// (or the anchors are poor), that class weighs less, on this stack. Then each term is
+// down-weighted by Cauchy(residual / (3 f σ)).
+void CtStackSolver::reweight() {
+  std::vector<double> z_ar, z_as, z_cr, z_cs;
+  std::vector<double> zi_ar(static_cast<std::size_t>(m_), 0.0), zi_as(zi_ar), zi_cr(zi_ar),
+      zi_cs(zi_ar);
+  for (int i = 0; i < m_; ++i) {
+    if (anchor_[std::size_t(i)] && !anchor_[std::size_t(i)]->fixed) {
+      const Anchor& a = *anchor_[std::size_t(i)];
+      const double lever = std::sqrt(a.w_rot / std::max(a.w_shift, 1e-12));  // px per degree
+      const double q = std::sqrt(std::max(a.w_shift, 1e-12)) * a.sigma;      // √confidence
+      const Rigid& t = solved_[std::size_t(i)];
+      zi_ar[std::size_t(i)] = std::abs(t.rotation_deg - a.t.rotation_deg) * lever * q / a.sigma;
+      zi_as[std::size_t(i)] =
+          std::hypot(t.dx_px - a.t.dx_px, t.dy_px - a.t.dy_px) * q / (a.sigma * std::sqrt(2.0));
+      z_ar.push_back(zi_ar[std::size_t(i)]);
+      z_as.push_back(zi_as[std::size_t(i)]);
+    }
+    if (curvature_ok(i)) {
+      const Rigid r1 = relative(solved_[std::size_t(i)], solved_[std::size_t(i - 1)], c_);
+      const Rigid r2 = relative(solved_[std::size_t(i + 1)], solved_[std::size_t(i)], c_);
+      const PairEdge& e1 = *primary_[std::size_t(i)];
+      const PairEdge& e2 = *primary_[std::size_t(i + 1)];
+      const double g1 = gap(i), g2 = gap(i + 1);
+      const double cr = (r2.rotation_deg - e2.relative.rotation_deg) / g2 -
+                        (r1.rotation_deg - e1.relative.rotation_deg) / g1;
+      const double cx = (r2.dx_px - e2.relative.dx_px) / g2 - (r1.dx_px - e1.relative.dx_px) / g1;
+      const double cy = (r2.dy_px - e2.relative.dy_px) / g2 - (r1.dy_px - e1.relative.dy_px) / g1;
+      zi_cr[std::size_t(i)] = std::abs(cr) * pair_lever_at(i) / pair_sigma(i);
+      zi_cs[std::size_t(i)] = std::hypot(cx, cy) / (pair_sigma(i) * std::sqrt(2.0));
+      z_cr.push_back(zi_cr[std::size_t(i)]);
+      z_cs.push_back(zi_cs[std::size_t(i)]);
+    }
+  }
+  auto scale = [](std::vector<double> z) {
+    if (z.size() < 5) return 1.0;
+    std::nth_element(z.begin(), z.begin() + z.size() / 2, z.end());
+    return std::max(1.0, 1.4826 * z[z.size() / 2]);
+  };
+  f_ar_ = scale(z_ar), f_as_ = scale(z_as), f_cr_ = scale(z_cr), f_cs_ = scale(z_cs);
+  for (int i = 0; i < m_; ++i) {
+    ra_rot_[std::size_t(i)] = cauchy(zi_ar[std::size_t(i)], f_ar_);
+    ra_shift_[std::size_t(i)] = cauchy(zi_as[std::size_t(i)], f_as_);
+    rc_rot_[std::size_t(i)] = cauchy(zi_cr[std::size_t(i)], f_cr_);
+    rc_shift_[std::size_t(i)] = cauchy(zi_cs[std::size_t(i)], f_cs_);
+  }
+}
+
+// Two rounds: the second, where fiducial groups are found on the grid of the first, adds the
+// groups' frames as free unknowns (the border of the banded systems) tied to each slice of the
+// group. Each round solves rotations then shifts, reweighting kRobustPasses times.
+void CtStackSolver::solve() {
+  for (int round = 0; round < 2 && m_ > 0; ++round) {
+    if (round == 1) {
+      std::vector<Rigid> t_all(static_cast<std::size_t>(n_));
+      for (int i = 0; i < m_; ++i)
+        t_all[std::size_t(node_slice_[std::size_t(i)])] = solved_[std::size_t(i)];
+      for (const PairEdge& e : fiducial_edges(pairs_, t_all, size_, &groups_))
+        fid_.push_back({e.from - n_, slice_node_[std::size_t(e.to)], e.relative});
+      result_.fiducial_groups = groups_;
+      if (groups_ == 0) break;
+    }
+    for (int pass = 0; pass <= kRobustPasses; ++pass) {
+      const std::vector<double> theta = solve_rotations();
+      const std::vector<double> d = solve_shifts(theta);
+      for (int i = 0; i < m_; ++i)
+        solved_[std::size_t(i)] = {theta[std::size_t(i)], d[2 * std::size_t(i)],
+                                   d[2 * std::size_t(i) + 1]};
+      if (pass == kRobustPasses) break;
+      reweight();
+    }
+  }
+}
+
+// Every slice's transform: the solved nodes; black slices interpolated between their usable
+// neighbours, duplicates copied, a person's fixed transforms; per slice the anchor's confidence
+// and residual; jumps where the solved motion exceeds jump_px (or a person marked one).
+void CtStackSolver::write_slices() {
+  result_.slices.resize(std::size_t(n_));
+  for (int k = 0; k < n_; ++k) {
+    SliceTransform& s = result_.slices[std::size_t(k)];
+    s.index = k;
+    s.black = pairs_[std::size_t(k)].black;
+    s.duplicate_of = pairs_[std::size_t(k)].duplicate_of;
+    s.quality = pairs_[std::size_t(k)].quality;
+    const int i = slice_node_[std::size_t(k)];
+    if (i >= 0) s.rigid = solved_[std::size_t(i)];
+  }
+  for (int k = 0; k < n_; ++k) {
+    if (!pairs_[std::size_t(k)].black) continue;
+    int a = k - 1, b = k + 1;
+    while (a >= 0 && !usable(a))
+      --a;
+    while (b < n_ && !usable(b))
+      ++b;
+    const SliceTransform* ta = a >= 0 ? &result_.slices[std::size_t(a)] : nullptr;
+    const SliceTransform* tb = b < n_ ? &result_.slices[std::size_t(b)] : nullptr;
+    if (!ta) ta = tb;
+    if (!tb) tb = ta;
+    SliceTransform& s = result_.slices[std::size_t(k)];
+    s.quality = 0.0;
+    if (!ta) continue;
+    const double w = (a >= 0 && b < n_) ? double(k - a) / double(b - a) : 0.0;
+    s.rigid.rotation_deg =
+        ta->rigid.rotation_deg + w * (tb->rigid.rotation_deg - ta->rigid.rotation_deg);
+    s.rigid.dx_px = ta->rigid.dx_px + w * (tb->rigid.dx_px - ta->rigid.dx_px);
+    s.rigid.dy_px = ta->rigid.dy_px + w * (tb->rigid.dy_px - ta->rigid.dy_px);
+  }
+  for (int k = 0; k < n_; ++k) {
+    if (!pairs_[std::size_t(k)].duplicate_of) continue;
+    const SliceTransform& o = result_.slices[std::size_t(*pairs_[std::size_t(k)].duplicate_of)];
+    result_.slices[std::size_t(k)].rigid = o.rigid;
+  }
+  for (const auto& o : options_.overrides) {
+    if (!o.transform) continue;
+    result_.slices[std::size_t(o.index)].rigid = *o.transform;
+  }
+  for (int k = 0; k < n_; ++k) {
+    SliceTransform& s = result_.slices[std::size_t(k)];
+    const auto& a = pairs_[std::size_t(k)].anchor;
+    if (!a) continue;
+    s.extra["anchor_confidence"] = a->ok ? a->confidence : 0.0;
+    if (a->ok)
+      s.extra["anchor_residual_px"] = rigid_motion_px(relative(a->transform, s.rigid, c_), size_);
+    const int i = slice_node_[std::size_t(k)];
+    if (i >= 0 && anchor_[std::size_t(i)] && !anchor_[std::size_t(i)]->fixed) {
+      ++result_.anchors_used;
+      if (ra_shift_[std::size_t(i)] < 0.5 || ra_rot_[std::size_t(i)] < 0.5)
+        ++result_.anchors_downweighted;
+    }
+  }
+  int prev = -1;
+  for (int k = 0; k < n_; ++k) {
+    if (!usable(k)) continue;
+    SliceTransform& s = result_.slices[std::size_t(k)];
+    if (prev >= 0) {
+      const SliceTransform& p = result_.slices[std::size_t(prev)];
+      s.jump = rigid_motion_px(relative(s.rigid, p.rigid, c_), size_) > options_.jump_px;
+    }
+    if (over_[std::size_t(k)] && over_[std::size_t(k)]->jump) s.jump = true;
+    prev = k;
+  }
+}
+
 }  // namespace
 
 StackSolve solve_stack(const std::vector<SlicePairs>& pairs, cv::Size size,
@@ -464,500 +1049,15 @@ StackSolve solve_stack(const std::vector<SlicePairs>& pairs, cv::Size size,
   for (int k = 0; k < n; ++k)
     if (pairs[std::size_t(k)].index != k)
       throw Error(cat("solve_stack: pair record ", k, " has index ", pairs[std::size_t(k)].index));
-  StackSolve result;
-  const cv::Point2d c = image_centre(size);
   std::vector<const SliceOverride*> over(static_cast<std::size_t>(n), nullptr);
   for (const auto& o : options.overrides)
     if (o.index >= 0 && o.index < n) over[std::size_t(o.index)] = &o;
-  auto usable = [&](int k) {
-    return !pairs[std::size_t(k)].black && !pairs[std::size_t(k)].duplicate_of;
-  };
-
-  if (options.anchor != "ct") {
-    // Without CT: the slice-0-referenced chain (plus fiducial groups); a person's fixed
-    // transform is an edge from the reference (T_0 = identity) with an overwhelming weight.
-    std::vector<SlicePairs> p = pairs;
-    for (const auto& o : options.overrides)
-      if (o.transform && o.index > 0 && usable(o.index))
-        p[std::size_t(o.index)].edges.push_back({0, o.index, *o.transform, kFixedWeight});
-    int groups = 0;
-    if (options.anchor == "none") {
-      for (auto& r : p)
-        r.fiducials.clear();
-    }
-    result.slices = chain_transforms(p, size, options.jump_px, &groups);
-    result.fiducial_groups = groups;
-    result.frame = groups > 0 ? "fiducials" : "slice0";
-    if (options.anchor == "none" && n > 2) {
-      // Regularised: without an absolute reference the drift's lowest frequencies are not
-      // observable, and integrating the pairs would turn the anatomy's apparent motion into
-      // drift without bound. A zero-phase exponential low-pass (window 100 slices) of the
-      // chained transforms is subtracted: what the pairs measure locally stays, a steady bias
-      // (a ramp) is removed in the interior and nothing integrates beyond ~100 slices.
-      constexpr double kWindow = 100.0;
-      const double a = 1.0 / kWindow;
-      std::vector<Rigid> t(static_cast<std::size_t>(n));
-      for (int k = 0; k < n; ++k)
-        t[std::size_t(k)] = result.slices[std::size_t(k)].rigid;
-      // Exponential low-pass, forward and backward (zero phase), subtracted from k >= 1.
-      std::vector<Rigid> lp = t;
-      for (int pass = 0; pass < 2; ++pass) {
-        const int start = pass == 0 ? 1 : n - 2, step = pass == 0 ? 1 : -1;
-        for (int k = start; k >= 0 && k < n; k += step) {
-          const Rigid& prev = lp[std::size_t(k - step)];
-          Rigid& cur = lp[std::size_t(k)];
-          cur = {prev.rotation_deg + a * (cur.rotation_deg - prev.rotation_deg),
-                 prev.dx_px + a * (cur.dx_px - prev.dx_px),
-                 prev.dy_px + a * (cur.dy_px - prev.dy_px)};
-        }
-      }
-      for (int k = 1; k < n; ++k) {
-        if (over[std::size_t(k)] && over[std::size_t(k)]->transform) continue;
-        Rigid& s = result.slices[std::size_t(k)].rigid;
-        s.rotation_deg -= lp[std::size_t(k)].rotation_deg - lp[0].rotation_deg;
-        s.dx_px -= lp[std::size_t(k)].dx_px - lp[0].dx_px;
-        s.dy_px -= lp[std::size_t(k)].dy_px - lp[0].dy_px;
-      }
-    }
-    for (const auto& o : options.overrides) {
-      if (o.transform) {
-        result.slices[std::size_t(o.index)].rigid = *o.transform;
-      }
-      if (o.jump) result.slices[std::size_t(o.index)].jump = true;
-    }
-    return result;
-  }
-
-  // ---- anchor mode "ct" ----
+  if (options.anchor != "ct") return solve_without_ct(pairs, size, options, over);
+  StackSolve result;
   result.frame = "ct";
-  std::vector<int> node_slice;  // node → stack index
-  std::vector<int> slice_node(static_cast<std::size_t>(n), -1);
-  for (int k = 0; k < n; ++k)
-    if (usable(k)) slice_node[std::size_t(k)] = int(node_slice.size()), node_slice.push_back(k);
-  const int m = int(node_slice.size());
-  std::vector<Rigid> solved(static_cast<std::size_t>(m));
-  // Primary pair edge into each node (from the previous node), unless cut.
-  std::vector<std::optional<PairEdge>> primary(static_cast<std::size_t>(m));
-  for (int i = 1; i < m; ++i) {
-    const int k = node_slice[std::size_t(i)];
-    if (over[std::size_t(k)] && over[std::size_t(k)]->jump) continue;  // a person's cut
-    for (const auto& e : pairs[std::size_t(k)].edges)
-      if (e.from == node_slice[std::size_t(i - 1)]) {
-        primary[std::size_t(i)] = e;
-        break;
-      }
-  }
-  const double r0 = 0.25 * 0.5 * (size.width + size.height);  // a "large" body radius, px
-  // Anchors and fixed transforms.
-  struct Anchor {
-    Rigid t;
-    double w_shift = 0, w_rot = 0, sigma = 1;
-    bool fixed = false;
-  };
-  std::vector<std::optional<Anchor>> anchor(static_cast<std::size_t>(m));
-  double nominal_wa = 0.0;  // 1/σ_a² of a confident anchor (for the first-order pair weight)
-  for (int i = 0; i < m; ++i) {
-    const int k = node_slice[std::size_t(i)];
-    const SliceOverride* o = over[std::size_t(k)];
-    if (o && o->transform) {
-      anchor[std::size_t(i)] = Anchor{*o->transform, kFixedWeight, kFixedWeight, 1e-4, true};
-      continue;
-    }
-    const auto& a = pairs[std::size_t(k)].anchor;
-    if (!a || !a->ok || a->confidence <= 0.0 || (o && o->exclude_anchor)) continue;
-    const double sigma = std::max(a->sigma_px, 1e-3);
-    const double lever = std::max(a->lever_px, 0.5) * kPi / 180.0;  // px per degree
-    anchor[std::size_t(i)] = Anchor{a->transform, a->confidence / (sigma * sigma),
-                                    a->confidence * lever * lever / (sigma * sigma), sigma, false};
-    nominal_wa = std::max(nominal_wa, 1.0 / (sigma * sigma));
-  }
-  if (nominal_wa == 0.0) nominal_wa = 1.0;
-  // Pair rotation lever: a quarter of the slice's mean edge.
-  // Pair terms: σ_p for a body of radius ≥ R0 (a quarter of the mean edge); a smaller body
-  // (the stack's ends) carries less information and often locks onto the gel: σ grows as
-  // (R0 / r)², and the rotation's lever is the body's radius r (from the CT anchor's record;
-  // R0 without one).
-  const double pair_lever = r0 * kPi / 180.0;
-  std::vector<double> radius(static_cast<std::size_t>(m), r0);
-  for (int i = 0; i < m; ++i) {
-    const auto& a = pairs[std::size_t(node_slice[std::size_t(i)])].anchor;
-    if (a && a->radius_px > 0.0) radius[std::size_t(i)] = std::max(5.0, a->radius_px);
-  }
-  auto pair_sigma = [&](int i) {  // σ (px) of the curvature term around node i
-    const double r =
-        std::min({radius[std::size_t(i - 1)], radius[std::size_t(i)], radius[std::size_t(i + 1)]});
-    return kPairSigmaPx * std::max(1.0, (r0 / r) * (r0 / r));
-  };
-  auto pair_lever_at = [&](int i) {
-    return std::min({radius[std::size_t(i - 1)], radius[std::size_t(i)], radius[std::size_t(i + 1)],
-                     r0}) *
-           kPi / 180.0;
-  };
-  const double w1_shift = kFirstOrderShare * nominal_wa;
-  const double w1_rot = w1_shift * pair_lever * pair_lever;
-  // A pair edge between slices of which one shows (almost) no body measures gel against gel:
-  // dropped (such slices follow their neighbours through the smoothness prior instead).
-  auto tiny_body = [&](int i) {
-    const auto& a = pairs[std::size_t(node_slice[std::size_t(i)])].anchor;
-    return a && (a->body_fraction < kTinyBodyFraction || a->radius_px < 0.25 * r0);
-  };
-  // A pair edge that claims a jump (motion > jump_px) is kept only where two confident anchors
-  // can confirm it (the gate below): at the ends of the stack a pair that lost track claims
-  // jumps that are not there.
-  auto confident_anchor = [&](int i) {
-    const auto& a = anchor[std::size_t(i)];
-    if (!a) return false;
-    if (a->fixed) return true;
-    return pairs[std::size_t(node_slice[std::size_t(i)])].anchor->confidence >= 0.3;
-  };
-  for (int i = 1; i < m; ++i) {
-    if (!primary[std::size_t(i)]) continue;
-    const bool unverified_jump =
-        !(confident_anchor(i - 1) && confident_anchor(i)) &&
-        rigid_motion_px(primary[std::size_t(i)]->relative, size) > options.jump_px;
-    if (tiny_body(i - 1) || tiny_body(i) || unverified_jump) {
-      primary[std::size_t(i)].reset();
-      ++result.pairs_rejected;
-    }
-  }
-  // Gate: a pair edge that contradicts the two anchors it joins is dropped before the solve
-  // (a pair on a small patch of body at the stack's end can lock onto the gel and report tens
-  // of degrees). The disagreement is measured at the body (shift at the centre plus rotation
-  // times the smaller radius of gyration) against 1 px + 3σ of the anchors' difference.
-  for (int i = 1; i < m; ++i) {
-    if (!primary[std::size_t(i)]) continue;
-    const auto& a0 = anchor[std::size_t(i - 1)];
-    const auto& a1 = anchor[std::size_t(i)];
-    const auto& r0 = pairs[std::size_t(node_slice[std::size_t(i - 1)])].anchor;
-    const auto& r1 = pairs[std::size_t(node_slice[std::size_t(i)])].anchor;
-    if (!a0 || !a1) continue;
-    const double conf =
-        std::min(a0->fixed ? 1.0 : r0->confidence, a1->fixed ? 1.0 : r1->confidence);
-    if (conf < 0.3) continue;
-    const double radius =
-        std::max(10.0, std::min(a0->fixed ? 1e3 : r0->radius_px, a1->fixed ? 1e3 : r1->radius_px));
-    const Rigid measured = relative(a1->t, a0->t, c);
-    const Rigid& p = primary[std::size_t(i)]->relative;
-    const double disagree = std::hypot(p.dx_px - measured.dx_px, p.dy_px - measured.dy_px) +
-                            std::abs(p.rotation_deg - measured.rotation_deg) * kPi / 180.0 * radius;
-    const double gate = 1.0 + 3.0 * std::hypot(a0->sigma, a1->sigma) / std::sqrt(conf);
-    if (disagree > gate) {
-      primary[std::size_t(i)].reset();
-      ++result.pairs_rejected;
-    }
-  }
-  // Smoothness prior (weak; what decides where neither anchors nor pairs do: the ends of the
-  // stack): the second difference of T is ~0 within σ_s, cut at a jump: one a person marked,
-  // or where the motion exceeds jump_px, judged by the two anchors when both are confident
-  // (a pair on a small patch of body can report a false jump) and by the pair otherwise.
-  std::vector<bool> cut(static_cast<std::size_t>(m), false);  // cut[i]: between node i−1 and i
-  for (int i = 1; i < m; ++i) {
-    const int k = node_slice[std::size_t(i)];
-    if (over[std::size_t(k)] && over[std::size_t(k)]->jump) {
-      cut[std::size_t(i)] = true;
-      continue;
-    }
-    const auto& a0 = anchor[std::size_t(i - 1)];
-    const auto& a1 = anchor[std::size_t(i)];
-    const auto& rec0 = pairs[std::size_t(node_slice[std::size_t(i - 1)])].anchor;
-    const auto& rec1 = pairs[std::size_t(k)].anchor;
-    const bool confident = a0 && a1 && (a0->fixed || rec0->confidence >= 0.3) &&
-                           (a1->fixed || rec1->confidence >= 0.3);
-    if (confident) {
-      // Judged at the body (shift at the centre + rotation × lever), where the anchors are
-      // accurate, not at the frame's corners, where their rotation noise is magnified.
-      const Rigid d = relative(a1->t, a0->t, c);
-      const double lever =
-          std::min(a0->fixed ? r0 : rec0->lever_px, a1->fixed ? r0 : rec1->lever_px);
-      cut[std::size_t(i)] =
-          std::hypot(d.dx_px, d.dy_px) + std::abs(d.rotation_deg) * kPi / 180.0 * lever >
-          options.jump_px;
-    } else if (primary[std::size_t(i)]) {
-      cut[std::size_t(i)] =
-          rigid_motion_px(primary[std::size_t(i)]->relative, size) > options.jump_px;
-    }
-  }
-  const double ws_shift = 1.0 / (kSmoothSigmaPx * kSmoothSigmaPx);
-  const double ws_rot = 1.0 / (kSmoothSigmaDeg * kSmoothSigmaDeg);
-  const double ww_shift = 1.0 / (kWalkSigmaPx * kWalkSigmaPx);
-  const double ww_rot = 1.0 / (kWalkSigmaDeg * kWalkSigmaDeg);
-  // Robust weights (Cauchy) of anchors and curvature terms, per component (rotation, shift).
-  std::vector<double> ra_rot(static_cast<std::size_t>(m), 1.0), ra_shift(std::size_t(m), 1.0);
-  std::vector<double> rc_rot(static_cast<std::size_t>(m), 1.0), rc_shift(std::size_t(m), 1.0);
-  auto gap = [&](int i) {
-    return double(node_slice[std::size_t(i)] - node_slice[std::size_t(i - 1)]);
-  };
-  auto curvature_ok = [&](int i) {  // terms around node i use edges into i and i+1
-    return i >= 1 && i + 1 < m && primary[std::size_t(i)] && primary[std::size_t(i + 1)];
-  };
-  // The smoothness prior acts only between the first and the last anchored node: beyond them
-  // (slices without body at the stack's ends) a second-difference prior would extrapolate the
-  // anchors' trend, and their noise with it, linearly; the random-walk prior alone gives the
-  // best prediction of a random walk there: the nearest anchored transform (flat).
-  int first_anchored = m, last_anchored = -1;
-  for (int i = 0; i < m; ++i)
-    if (anchor[std::size_t(i)]) first_anchored = std::min(first_anchored, i), last_anchored = i;
-  auto smooth_ok = [&](int i) {
-    return i >= 1 && i + 1 < m && !cut[std::size_t(i)] && !cut[std::size_t(i + 1)] &&
-           i - 1 >= first_anchored && i + 1 <= last_anchored;
-  };
-  // With no anchor at all, the stack is still solved (pairs only) but unanchored: pin node 0.
-  bool any_anchor = false;
-  for (const auto& a : anchor)
-    any_anchor = any_anchor || bool(a);
-  double f_ar = 1.0, f_as = 1.0, f_cr = 1.0, f_cs = 1.0;  // noise scale factors (below)
-  // Fiducial groups (where tubes are seen): found on the grid of a first solve, then free
-  // group-frame unknowns (the border of the banded systems) tied to each slice of the group.
-  struct FiducialTerm {
-    int group, node;
-    Rigid fit;
-  };
-  std::vector<FiducialTerm> fid;
-  int groups = 0;
-  const double wf_shift = 1.0 / (kFiducialSigmaPx * kFiducialSigmaPx);
-  const double wf_rot = wf_shift * std::pow(2.0 * r0 * kPi / 180.0, 2);
-  for (int round = 0; round < 2 && m > 0; ++round) {
-    if (round == 1) {
-      std::vector<Rigid> t_all(static_cast<std::size_t>(n));
-      for (int i = 0; i < m; ++i)
-        t_all[std::size_t(node_slice[std::size_t(i)])] = solved[std::size_t(i)];
-      for (const PairEdge& e : fiducial_edges(pairs, t_all, size, &groups))
-        fid.push_back({e.from - n, slice_node[std::size_t(e.to)], e.relative});
-      result.fiducial_groups = groups;
-      if (groups == 0) break;
-    }
-    for (int pass = 0; pass <= kRobustPasses; ++pass) {
-      // Rotations.
-      LeastSquares rot(m, 2, groups);
-      for (const auto& f : fid)
-        rot.row({{f.node, 1.0}, {m + f.group, -1.0}}, f.fit.rotation_deg, wf_rot);
-      if (!any_anchor && m > 0) rot.row({{0, 1.0}}, 0.0, kFixedWeight);
-      for (int i = 0; i < m; ++i) {
-        if (anchor[std::size_t(i)])
-          rot.row({{i, 1.0}}, anchor[std::size_t(i)]->t.rotation_deg,
-                  anchor[std::size_t(i)]->w_rot * ra_rot[std::size_t(i)] / (f_ar * f_ar));
-        if (i >= 1 && primary[std::size_t(i)]) {
-          const PairEdge& e = *primary[std::size_t(i)];
-          rot.row({{i, 1.0}, {i - 1, -1.0}}, e.relative.rotation_deg, w1_rot * e.weight);
-        }
-        if (i >= 1 && !cut[std::size_t(i)])
-          rot.row({{i, 1.0}, {i - 1, -1.0}}, 0.0, ww_rot / gap(i));
-        if (smooth_ok(i))
-          rot.row({{i + 1, 1.0 / gap(i + 1)},
-                   {i, -1.0 / gap(i + 1) - 1.0 / gap(i)},
-                   {i - 1, 1.0 / gap(i)}},
-                  0.0, ws_rot);
-        if (curvature_ok(i)) {
-          const PairEdge& e1 = *primary[std::size_t(i)];
-          const PairEdge& e2 = *primary[std::size_t(i + 1)];
-          const double g1 = gap(i), g2 = gap(i + 1);
-          const double sl = pair_sigma(i) / pair_lever_at(i);  // degrees
-          const double w =
-              std::min(e1.weight, e2.weight) * rc_rot[std::size_t(i)] / (sl * sl * f_cr * f_cr);
-          rot.row({{i + 1, 1.0 / g2}, {i, -1.0 / g2 - 1.0 / g1}, {i - 1, 1.0 / g1}},
-                  e2.relative.rotation_deg / g2 - e1.relative.rotation_deg / g1, w);
-        }
-      }
-      const std::vector<double> theta = rot.solve();
-      // Shifts (x, y interleaved), rotations fixed.
-      LeastSquares sh(2 * m, 5, 2 * groups);
-      if (!any_anchor && m > 0) {
-        sh.row({{0, 1.0}}, 0.0, kFixedWeight);
-        sh.row({{1, 1.0}}, 0.0, kFixedWeight);
-      }
-      auto rmat = [&](int i, int j) {  // R(θ_i − θ_j)
-        const double a = (theta[std::size_t(i)] - theta[std::size_t(j)]) * kPi / 180.0;
-        return cv::Matx22d(std::cos(a), -std::sin(a), std::sin(a), std::cos(a));
-      };
-      for (const auto& f : fid) {
-        // d_k − R(θ_k − θ_g) d_g = e
-        const cv::Matx22d r = rmat(f.node, m + f.group);
-        const int g = 2 * m + 2 * f.group;
-        sh.row({{2 * f.node, 1.0}, {g, -r(0, 0)}, {g + 1, -r(0, 1)}}, f.fit.dx_px, wf_shift);
-        sh.row({{2 * f.node + 1, 1.0}, {g, -r(1, 0)}, {g + 1, -r(1, 1)}}, f.fit.dy_px, wf_shift);
-      }
-      for (int i = 0; i < m; ++i) {
-        if (anchor[std::size_t(i)]) {
-          const double w =
-              anchor[std::size_t(i)]->w_shift * ra_shift[std::size_t(i)] / (f_as * f_as);
-          sh.row({{2 * i, 1.0}}, anchor[std::size_t(i)]->t.dx_px, w);
-          sh.row({{2 * i + 1, 1.0}}, anchor[std::size_t(i)]->t.dy_px, w);
-        }
-        if (i >= 1 && primary[std::size_t(i)]) {
-          // d_i − R(θ_i − θ_{i−1}) d_{i−1} = e
-          const PairEdge& e = *primary[std::size_t(i)];
-          const cv::Matx22d r = rmat(i, i - 1);
-          const double w = w1_shift * e.weight;
-          sh.row({{2 * i, 1.0}, {2 * (i - 1), -r(0, 0)}, {2 * (i - 1) + 1, -r(0, 1)}},
-                 e.relative.dx_px, w);
-          sh.row({{2 * i + 1, 1.0}, {2 * (i - 1), -r(1, 0)}, {2 * (i - 1) + 1, -r(1, 1)}},
-                 e.relative.dy_px, w);
-        }
-        if (i >= 1 && !cut[std::size_t(i)]) {
-          // d_i − R(θ_i − θ_{i−1}) d_{i−1} = 0: no motion between neighbours (random walk).
-          const cv::Matx22d r = rmat(i, i - 1);
-          const double w = ww_shift / gap(i);
-          sh.row({{2 * i, 1.0}, {2 * (i - 1), -r(0, 0)}, {2 * (i - 1) + 1, -r(0, 1)}}, 0.0, w);
-          sh.row({{2 * i + 1, 1.0}, {2 * (i - 1), -r(1, 0)}, {2 * (i - 1) + 1, -r(1, 1)}}, 0.0, w);
-        }
-        if (smooth_ok(i)) {
-          const double g1 = gap(i), g2 = gap(i + 1);
-          for (int row = 0; row < 2; ++row)
-            sh.row({{2 * (i + 1) + row, 1.0 / g2},
-                    {2 * i + row, -1.0 / g2 - 1.0 / g1},
-                    {2 * (i - 1) + row, 1.0 / g1}},
-                   0.0, ws_shift);
-        }
-        if (curvature_ok(i)) {
-          // (d_{i+1} − R₂ d_i − e₂)/g₂ − (d_i − R₁ d_{i−1} − e₁)/g₁ = 0
-          const PairEdge& e1 = *primary[std::size_t(i)];
-          const PairEdge& e2 = *primary[std::size_t(i + 1)];
-          const double g1 = gap(i), g2 = gap(i + 1);
-          const cv::Matx22d r2 = rmat(i + 1, i), r1 = rmat(i, i - 1);
-          const double w = std::min(e1.weight, e2.weight) * rc_shift[std::size_t(i)] /
-                           (pair_sigma(i) * pair_sigma(i) * f_cs * f_cs);
-          for (int row = 0; row < 2; ++row) {
-            // Coefficients on d_{i+1}[row], d_i[0..1], d_{i−1}[0..1].
-            const double di0 = -r2(row, 0) / g2 - (row == 0 ? 1.0 : 0.0) / g1;
-            const double di1 = -r2(row, 1) / g2 - (row == 1 ? 1.0 : 0.0) / g1;
-            const double rhs = (row == 0 ? e2.relative.dx_px : e2.relative.dy_px) / g2 -
-                               (row == 0 ? e1.relative.dx_px : e1.relative.dy_px) / g1;
-            sh.row({{2 * (i + 1) + row, 1.0 / g2},
-                    {2 * i, di0},
-                    {2 * i + 1, di1},
-                    {2 * (i - 1), r1(row, 0) / g1},
-                    {2 * (i - 1) + 1, r1(row, 1) / g1}},
-                   rhs, w);
-          }
-        }
-      }
-      const std::vector<double> d = sh.solve();
-      for (int i = 0; i < m; ++i)
-        solved[std::size_t(i)] = {theta[std::size_t(i)], d[2 * std::size_t(i)],
-                                  d[2 * std::size_t(i) + 1]};
-      if (pass == kRobustPasses) break;
-      // Noise levels from the data, then robust weights. Each class of measurement (anchor
-      // rotation, anchor shift, pair-curvature rotation, pair-curvature shift) gets a scale factor
-      // f = 1.4826 · median of its normalised residuals (at least 0.3): where the anatomy makes
-      // pair estimates noisy (or the anchors are poor), that class weighs less, on this stack.
-      // Then each term is down-weighted by Cauchy(residual / (3 f σ)).
-      std::vector<double> z_ar, z_as, z_cr, z_cs;
-      std::vector<double> zi_ar(static_cast<std::size_t>(m), 0.0), zi_as(zi_ar), zi_cr(zi_ar),
-          zi_cs(zi_ar);
-      for (int i = 0; i < m; ++i) {
-        if (anchor[std::size_t(i)] && !anchor[std::size_t(i)]->fixed) {
-          const Anchor& a = *anchor[std::size_t(i)];
-          const double lever = std::sqrt(a.w_rot / std::max(a.w_shift, 1e-12));  // px per degree
-          const double q = std::sqrt(std::max(a.w_shift, 1e-12)) * a.sigma;      // √confidence
-          const Rigid& t = solved[std::size_t(i)];
-          zi_ar[std::size_t(i)] = std::abs(t.rotation_deg - a.t.rotation_deg) * lever * q / a.sigma;
-          zi_as[std::size_t(i)] =
-              std::hypot(t.dx_px - a.t.dx_px, t.dy_px - a.t.dy_px) * q / (a.sigma * std::sqrt(2.0));
-          z_ar.push_back(zi_ar[std::size_t(i)]);
-          z_as.push_back(zi_as[std::size_t(i)]);
-        }
-        if (curvature_ok(i)) {
-          const Rigid r1 = relative(solved[std::size_t(i)], solved[std::size_t(i - 1)], c);
-          const Rigid r2 = relative(solved[std::size_t(i + 1)], solved[std::size_t(i)], c);
-          const PairEdge& e1 = *primary[std::size_t(i)];
-          const PairEdge& e2 = *primary[std::size_t(i + 1)];
-          const double g1 = gap(i), g2 = gap(i + 1);
-          const double cr = (r2.rotation_deg - e2.relative.rotation_deg) / g2 -
-                            (r1.rotation_deg - e1.relative.rotation_deg) / g1;
-          const double cx =
-              (r2.dx_px - e2.relative.dx_px) / g2 - (r1.dx_px - e1.relative.dx_px) / g1;
-          const double cy =
-              (r2.dy_px - e2.relative.dy_px) / g2 - (r1.dy_px - e1.relative.dy_px) / g1;
-          zi_cr[std::size_t(i)] = std::abs(cr) * pair_lever_at(i) / pair_sigma(i);
-          zi_cs[std::size_t(i)] = std::hypot(cx, cy) / (pair_sigma(i) * std::sqrt(2.0));
-          z_cr.push_back(zi_cr[std::size_t(i)]);
-          z_cs.push_back(zi_cs[std::size_t(i)]);
-        }
-      }
-      auto scale = [](std::vector<double> z) {
-        if (z.size() < 5) return 1.0;
-        std::nth_element(z.begin(), z.begin() + z.size() / 2, z.end());
-        return std::max(1.0, 1.4826 * z[z.size() / 2]);
-      };
-      f_ar = scale(z_ar), f_as = scale(z_as), f_cr = scale(z_cr), f_cs = scale(z_cs);
-      for (int i = 0; i < m; ++i) {
-        ra_rot[std::size_t(i)] = cauchy(zi_ar[std::size_t(i)], f_ar);
-        ra_shift[std::size_t(i)] = cauchy(zi_as[std::size_t(i)], f_as);
-        rc_rot[std::size_t(i)] = cauchy(zi_cr[std::size_t(i)], f_cr);
-        rc_shift[std::size_t(i)] = cauchy(zi_cs[std::size_t(i)], f_cs);
-      }
-    }
-  }
-  // Slices out of the solve: black ones interpolated, duplicates copied.
-  result.slices.resize(std::size_t(n));
-  for (int k = 0; k < n; ++k) {
-    SliceTransform& s = result.slices[std::size_t(k)];
-    s.index = k;
-    s.black = pairs[std::size_t(k)].black;
-    s.duplicate_of = pairs[std::size_t(k)].duplicate_of;
-    s.quality = pairs[std::size_t(k)].quality;
-    const int i = slice_node[std::size_t(k)];
-    if (i >= 0) {
-      const Rigid& t = solved[std::size_t(i)];
-      s.rigid = t;
-    }
-  }
-  for (int k = 0; k < n; ++k) {
-    if (!pairs[std::size_t(k)].black) continue;
-    int a = k - 1, b = k + 1;
-    while (a >= 0 && !usable(a))
-      --a;
-    while (b < n && !usable(b))
-      ++b;
-    const SliceTransform* ta = a >= 0 ? &result.slices[std::size_t(a)] : nullptr;
-    const SliceTransform* tb = b < n ? &result.slices[std::size_t(b)] : nullptr;
-    if (!ta) ta = tb;
-    if (!tb) tb = ta;
-    SliceTransform& s = result.slices[std::size_t(k)];
-    s.quality = 0.0;
-    if (!ta) continue;
-    const double w = (a >= 0 && b < n) ? double(k - a) / double(b - a) : 0.0;
-    s.rigid.rotation_deg =
-        ta->rigid.rotation_deg + w * (tb->rigid.rotation_deg - ta->rigid.rotation_deg);
-    s.rigid.dx_px = ta->rigid.dx_px + w * (tb->rigid.dx_px - ta->rigid.dx_px);
-    s.rigid.dy_px = ta->rigid.dy_px + w * (tb->rigid.dy_px - ta->rigid.dy_px);
-  }
-  for (int k = 0; k < n; ++k) {
-    if (!pairs[std::size_t(k)].duplicate_of) continue;
-    const SliceTransform& o = result.slices[std::size_t(*pairs[std::size_t(k)].duplicate_of)];
-    SliceTransform& s = result.slices[std::size_t(k)];
-    s.rigid = o.rigid;
-  }
-  for (const auto& o : options.overrides) {
-    if (!o.transform) continue;
-    result.slices[std::size_t(o.index)].rigid = *o.transform;
-  }
-  // Anchor confidence and residual per slice; jumps.
-  for (int k = 0; k < n; ++k) {
-    SliceTransform& s = result.slices[std::size_t(k)];
-    const auto& a = pairs[std::size_t(k)].anchor;
-    if (!a) continue;
-    s.extra["anchor_confidence"] = a->ok ? a->confidence : 0.0;
-    if (a->ok)
-      s.extra["anchor_residual_px"] = rigid_motion_px(relative(a->transform, s.rigid, c), size);
-    const int i = slice_node[std::size_t(k)];
-    if (i >= 0 && anchor[std::size_t(i)] && !anchor[std::size_t(i)]->fixed) {
-      ++result.anchors_used;
-      if (ra_shift[std::size_t(i)] < 0.5 || ra_rot[std::size_t(i)] < 0.5)
-        ++result.anchors_downweighted;
-    }
-  }
-  int prev = -1;
-  for (int k = 0; k < n; ++k) {
-    if (!usable(k)) continue;
-    SliceTransform& s = result.slices[std::size_t(k)];
-    if (prev >= 0) {
-      const SliceTransform& p = result.slices[std::size_t(prev)];
-      s.jump = rigid_motion_px(relative(s.rigid, p.rigid, c), size) > options.jump_px;
-    }
-    if (over[std::size_t(k)] && over[std::size_t(k)]->jump) s.jump = true;
-    prev = k;
-  }
+  CtStackSolver solver(pairs, size, options, over, result);
+  solver.solve();
+  solver.write_slices();
   return result;
 }
 
