@@ -12,6 +12,7 @@
 # Writes OUT_DIR/pack_memory.csv and, with /usr/bin/python3 + matplotlib, OUT_DIR/pack_memory.png
 # and OUT_DIR/pack_memory.md (the table).
 set -euo pipefail
+bench_dir=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 here=$(cd "$(dirname "$0")/../.." && pwd)
 out=$1
 edges=$2
@@ -43,21 +44,19 @@ PY
   local log=$out/time_${label}_$(basename "$dir")_e$edge.txt
   /usr/bin/time -v "$bin" --config "$cfg" --force --quiet --threads "$threads" 2> "$log" > /dev/null
   local vpk=$dir/out/volume_e$edge.vpk
-  /usr/bin/python3 - "$log" "$vpk" "$label" "$edge" "$dir" >> "$csv" <<'PY'
-import json, os, re, sys
+  VISPACK_BENCH_DIR=$bench_dir /usr/bin/python3 - "$log" "$vpk" "$label" "$edge" "$dir" >> "$csv" <<'PY'
+import json, os, sys
+sys.path.insert(0, os.environ["VISPACK_BENCH_DIR"])
+from time_v import parse_time_v
 log, vpk, label, edge, d = sys.argv[1:6]
 t = open(log).read()
-def f(key):
-    return re.search(re.escape(key) + r": ([0-9.:]+)", t).group(1)
-wall = f("Elapsed (wall clock) time (h:mm:ss or m:ss)").split(":")
-wall_s = sum(float(x) * 60 ** i for i, x in enumerate(reversed(wall)))
+tv = parse_time_v(t, sys.argv[1])
 rep = json.load(open(os.path.join(d, "work", "pack", "report.json")))
 dims = rep.get("dims") or rep.get("report", {}).get("dims")
 cfg = json.load(open(os.path.join(d, "config.json")))
 bpv = 4 + (2 if "ct" in cfg else 0) + (1 if "seg" in cfg else 0)  # rgba8 + int16 + uint8 labels
 print(",".join(str(x) for x in [label, edge, dims[2], dims[0], dims[1], bpv,
-                                f("Maximum resident set size (kbytes)"), f("User time (seconds)"),
-                                f("System time (seconds)"), round(wall_s, 2),
+                                tv["peak_rss_kib"], tv["user_s"], tv["system_s"], tv["wall_s"],
                                 os.path.getsize(vpk)]))
 PY
 }

@@ -4,6 +4,7 @@
 # /usr/bin/time -v; appends one row to scripts/bench/pack_memory.sh's CSV (binary "zstd-3-T2").
 # usage: scripts/bench/pack_zstd_peer.sh FILE.vpk CSV [SCRATCH_DIR]
 set -euo pipefail
+bench_dir=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
 here=$(cd "$(dirname "$0")/../.." && pwd)
 vpk=$1
 csv=$2
@@ -28,16 +29,14 @@ done
 cat "$scratch"/*.nrrd > "$scratch/raw"
 rm -f "$scratch"/*.nrrd
 /usr/bin/time -v zstd -3 -T2 -q -c "$scratch/raw" 2> "$scratch/time.txt" > "$scratch/raw.zst"
-/usr/bin/python3 - "$scratch/time.txt" "$scratch/raw.zst" "$edge" "$dz" "$dx" "$dy" >> "$csv" <<'PY'
-import os, re, sys
+VISPACK_BENCH_DIR=$bench_dir /usr/bin/python3 - "$scratch/time.txt" "$scratch/raw.zst" "$edge" "$dz" "$dx" "$dy" >> "$csv" <<'PY'
+import os, sys
+sys.path.insert(0, os.environ["VISPACK_BENCH_DIR"])
+from time_v import parse_time_v
 t = open(sys.argv[1]).read()
-def f(key):
-    return re.search(re.escape(key) + r": ([0-9.:]+)", t).group(1)
-wall = f("Elapsed (wall clock) time (h:mm:ss or m:ss)").split(":")
-wall_s = sum(float(x) * 60 ** i for i, x in enumerate(reversed(wall)))
+tv = parse_time_v(t, sys.argv[1])
 edge, dz, dx, dy = sys.argv[3:7]
 print(",".join(str(x) for x in ["zstd-3-T2", edge, dz, dx, dy, 7,
-                                f("Maximum resident set size (kbytes)"), f("User time (seconds)"),
-                                f("System time (seconds)"), round(wall_s, 2),
+                                tv["peak_rss_kib"], tv["user_s"], tv["system_s"], tv["wall_s"],
                                 os.path.getsize(sys.argv[2])]))
 PY

@@ -29,6 +29,7 @@ from common import median, write_json
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "python"))
 import vispack  # noqa: E402  (the project's own reader: the packed file's geometry)
+from time_v import run_time_v  # noqa: E402
 
 BIN = os.environ["VISPACK_BENCH_BIN"]
 WORK = os.environ["VISPACK_BENCH_WORK"]
@@ -37,17 +38,8 @@ REPS = int(os.environ.get("VISPACK_BENCH_REAL_REPS", "3"))
 
 def time_v(cmd, log, **kw):
     """Runs cmd under /usr/bin/time -v; returns wall s, CPU s (user + system), peak RSS MiB."""
-    subprocess.run(["/usr/bin/time", "-v", "-o", log] + cmd, check=True, **kw)
-    text = open(log).read()
-
-    def field(name):
-        return re.search(re.escape(name) + r": ([0-9.:]+)", text).group(1)
-
-    wall = 0.0
-    for part in field("Elapsed (wall clock) time (h:mm:ss or m:ss)").split(":"):
-        wall = wall * 60 + float(part)
-    cpu = float(field("User time (seconds)")) + float(field("System time (seconds)"))
-    return wall, cpu, int(field("Maximum resident set size (kbytes)")) / 1024
+    t = run_time_v(cmd, log, **kw)
+    return t["wall_s"], t["cpu_s"], t["peak_rss_mib"]
 
 
 def stage_seconds(stdout):

@@ -7,7 +7,6 @@ Runs `vispack-STAGE --config C --force --quiet --threads T` (T = 1, then 2) for 
 `/usr/bin/time -v` and reads the stage's own time from work/STAGE/report.json."""
 import json
 import os
-import re
 import subprocess
 import sys
 
@@ -15,6 +14,7 @@ import numpy as np
 from PIL import Image
 
 from common import median, pair_error_px, rms, timed2, write_json
+from time_v import read_time_v
 
 BIN = os.environ["VISPACK_BENCH_BIN"]
 WORK = os.environ["VISPACK_BENCH_WORK"]
@@ -41,7 +41,7 @@ def affine(s, centre):
 
 
 def peak_rss_mib(log):
-    return int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", open(log).read()).group(1)) / 1024
+    return read_time_v(log)["peak_rss_mib"]
 
 
 def run_stage(stage, config, threads, log):
