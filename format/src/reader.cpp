@@ -155,8 +155,18 @@ struct Reader::Impl {
     base = static_cast<const std::uint8_t*>(p);
   }
 
+  // The 128-byte header (SPEC.md "Header"), checked field by field before any offset in it is
+  // used: what the file is, the fixed fields, where the blocks lie, the table checksum.
   void parse_header(const ReaderLimits& limits) {
     std::memcpy(&header, base, sizeof(header));
+    check_identity();
+    check_header_fields();
+    check_block_layout(limits);
+    check_table_checksum();
+  }
+
+  // Magic, version and file size: is this a packed volume this reader can read, and whole.
+  void check_identity() const {
     const FileHeader& h = header;
     if (std::memcmp(h.magic, detail::kMagic, 8) != 0) {
       if (std::memcmp(h.magic + 1, "VPK", 3) == 0) {
@@ -176,6 +186,11 @@ struct Reader::Impl {
       fail(DefectKind::kSizeMismatch, cat("truncated or extended: the header says ", h.file_size,
                                           " bytes, the file has ", size));
     }
+  }
+
+  // The fields with fixed or bounded values: sizes, reserved fields, brick edge, counts.
+  void check_header_fields() const {
+    const FileHeader& h = header;
     if (h.header_size != detail::kHeaderSize)
       fail(DefectKind::kHeaderField, cat("header_size ", h.header_size, " is not 128"));
     if (h.index_entry_size != detail::kIndexEntrySize) {
@@ -192,6 +207,12 @@ struct Reader::Impl {
            cat("channel_count ", h.channel_count, " is outside [1, 255]"));
     if (h.level_count < 1 || h.level_count > 64)
       fail(DefectKind::kHeaderField, cat("level_count ", h.level_count, " is outside [1, 64]"));
+  }
+
+  // Payloads, metadata, index and label IDs lie one after the other, inside the file, in that
+  // order, with the limits' sizes.
+  void check_block_layout(const ReaderLimits& limits) const {
+    const FileHeader& h = header;
     if (h.payload_offset != kPayloadAlignment)
       fail(DefectKind::kHeaderField, cat("payload_offset ", h.payload_offset, " is not 4096"));
     if (h.payload_end < h.payload_offset || h.payload_end % kPayloadAlignment != 0 ||
@@ -233,7 +254,11 @@ struct Reader::Impl {
     if (!labels_end || *labels_end != size)
       fail(DefectKind::kHeaderField, cat("label IDs (", h.labels_count, " at ", h.labels_offset,
                                          ") do not end at the file end ", size));
+  }
 
+  // xxHash64 of header[0, 120) and everything from the metadata to the end of the file.
+  void check_table_checksum() const {
+    const FileHeader& h = header;
     XXH64_state_t* state = XXH64_createState();
     if (!state) throw std::bad_alloc();
     XXH64_reset(state, 0);
@@ -242,7 +267,6 @@ struct Reader::Impl {
                  std::size_t(h.labels_offset + h.labels_count * 4 - h.metadata_offset));
     std::uint64_t sum = XXH64_digest(state);
     XXH64_freeState(state);
-    // Covers header[0, 120) and everything from the metadata to the end of the file.
     if (sum != h.table_checksum) {
       fail(DefectKind::kTableChecksum,
            cat("table checksum mismatch (header, metadata, index, label IDs): stored ",
@@ -292,114 +316,139 @@ struct Reader::Impl {
     }
   }
 
+  // A payload's byte range and its brick (for the overlap check).
+  struct PayloadSpan {
+    std::uint64_t offset, end;
+    std::size_t k;
+  };
+
+  // The brick index (SPEC.md "Brick index"): one entry per brick in level, channel, z, y, x
+  // order, each checked (parse_entry) before it is used, then the payloads' layout.
   void parse_index() {
     const FileHeader& h = header;
     label_ids.resize(std::size_t(h.labels_count));
     if (h.labels_count)
       std::memcpy(label_ids.data(), base + h.labels_offset, std::size_t(h.labels_count) * 4);
     bricks.resize(std::size_t(h.index_count));
-    struct Span {
-      std::uint64_t offset, end;
-      std::size_t k;
-    };
-    std::vector<Span> spans;
+    std::vector<PayloadSpan> spans;
     std::size_t k = 0;
     for (int l = 0; l < int(levels.size()); ++l) {
       const LevelInfo& li = levels[std::size_t(l)];
-      for (int c = 0; c < int(channels.size()); ++c) {
-        const ChannelType type = channels[std::size_t(c)].type;
-        const std::size_t vbytes = channel_type_bytes(type);
-        const std::uint64_t raw_bytes = brick_bytes(c);
-        for (std::int64_t bz = 0; bz < li.bricks[2]; ++bz) {
-          for (std::int64_t by = 0; by < li.bricks[1]; ++by) {
-            for (std::int64_t bx = 0; bx < li.bricks[0]; ++bx, ++k) {
-              IndexEntry e;
-              std::memcpy(&e, base + h.index_offset + k * sizeof(IndexEntry), sizeof(e));
-              auto bad = [&](const std::string& what) {
-                fail_brick(DefectKind::kIndexEntry, l, c, bx, by, bz, what);
-              };
-              if (e.level != l || e.channel != c || e.bx != bx || e.by != by || e.bz != bz) {
-                bad(cat("index entry ", k, " is for level ", int(e.level), " channel ",
-                        int(e.channel), " brick (", e.bx, ",", e.by, ",", e.bz,
-                        "), expected this brick"));
-              }
-              if (e.reserved != 0) bad(cat("reserved byte is not zero"));
-              for (std::size_t i = vbytes; i < 8; ++i) {
-                if (e.min[i] != 0 || e.max[i] != 0)
-                  bad(cat("min/max bytes past the voxel size are not zero"));
-              }
-              BrickInfo& b = bricks[k];
-              b.level = l;
-              b.channel = c;
-              b.brick = {bx, by, bz};
-              b.offset = e.offset;
-              b.stored_size = e.stored_size;
-              b.checksum = e.checksum;
-              b.min = decode_value(type, e.min);
-              b.max = decode_value(type, e.max);
-              std::memcpy(b.uniform.data(), e.min, 4);
-              b.label_first = e.label_first;
-              b.label_count = e.label_count;
-              for (int comp = 0; comp < 4; ++comp) {
-                if (b.min[comp] > b.max[comp]) bad(cat("min > max"));
-              }
-              switch (e.codec) {
-                case std::uint8_t(Codec::kUniform):
-                  b.codec = Codec::kUniform;
-                  if (e.offset || e.stored_size || e.checksum)
-                    bad(cat("uniform brick with a payload offset, size or checksum"));
-                  if (std::memcmp(e.min, e.max, 8) != 0) bad(cat("uniform brick with min != max"));
-                  break;
-                case std::uint8_t(Codec::kRaw):
-                case std::uint8_t(Codec::kZstd): {
-                  b.codec = Codec(e.codec);
-                  if (b.codec == Codec::kRaw && e.stored_size != raw_bytes)
-                    bad(cat("raw brick of ", e.stored_size, " bytes, expected ", raw_bytes));
-                  if (b.codec == Codec::kZstd && (e.stored_size == 0 || e.stored_size >= raw_bytes))
-                    bad(cat("zstd brick of ", e.stored_size, " bytes (must be in [1, ", raw_bytes,
-                            "))"));
-                  if (e.offset % kPayloadAlignment != 0)
-                    bad(cat("payload offset ", e.offset, " is not a multiple of 4096"));
-                  auto end = add(e.offset, e.stored_size);
-                  if (e.offset < h.payload_offset || !end || *end > h.payload_end) {
-                    bad(cat("payload [", e.offset, ", +", e.stored_size,
-                            ") lies outside the payload area [", h.payload_offset, ", ",
-                            h.payload_end, ")"));
-                  }
-                  spans.push_back({e.offset, *end, k});
-                  break;
-                }
-                default:
-                  bad(cat("unknown codec ", int(e.codec)));
-              }
-              if (is_label_type(type)) {
-                if (e.label_count == 0 ||
-                    std::uint64_t(e.label_first) + e.label_count > h.labels_count) {
-                  bad(cat("label set [", e.label_first, ", +", e.label_count,
-                          ") is empty or outside the ", h.labels_count, " label IDs"));
-                }
-                const std::uint32_t limit = type == ChannelType::kUint8 ? 255 : 65535;
-                const std::uint32_t* ids = label_ids.data() + e.label_first;
-                for (std::uint32_t i = 0; i < e.label_count; ++i) {
-                  if (ids[i] > limit || (i > 0 && ids[i] <= ids[i - 1]))
-                    bad(cat("label set is not strictly ascending within the type's range"));
-                }
-                if (ids[0] != std::uint64_t(b.min[0]) ||
-                    ids[e.label_count - 1] != std::uint64_t(b.max[0])) {
-                  bad(cat("label set does not match min/max"));
-                }
-              } else if (e.label_count != 0 || e.label_first != 0) {
-                bad(cat("label set on a channel that is not a label channel"));
-              }
-            }
-          }
-        }
-      }
+      for (int c = 0; c < int(channels.size()); ++c)
+        for (std::int64_t bz = 0; bz < li.bricks[2]; ++bz)
+          for (std::int64_t by = 0; by < li.bricks[1]; ++by)
+            for (std::int64_t bx = 0; bx < li.bricks[0]; ++bx, ++k)
+              parse_entry(k, l, c, {bx, by, bz}, spans);
     }
+    check_payload_spans(spans);
+  }
+
+  // Index entry k, expected to describe brick `at` of level l, channel c: read into bricks[k],
+  // its payload's range appended to `spans`. Throws FileDefect naming the brick.
+  void parse_entry(std::size_t k, int l, int c, const std::array<std::int64_t, 3>& at,
+                   std::vector<PayloadSpan>& spans) {
+    const ChannelType type = channels[std::size_t(c)].type;
+    const std::size_t vbytes = channel_type_bytes(type);
+    IndexEntry e;
+    std::memcpy(&e, base + header.index_offset + k * sizeof(IndexEntry), sizeof(e));
+    auto bad = [&](const std::string& what) {
+      fail_brick(DefectKind::kIndexEntry, l, c, at[0], at[1], at[2], what);
+    };
+    if (e.level != l || e.channel != c || e.bx != at[0] || e.by != at[1] || e.bz != at[2]) {
+      bad(cat("index entry ", k, " is for level ", int(e.level), " channel ", int(e.channel),
+              " brick (", e.bx, ",", e.by, ",", e.bz, "), expected this brick"));
+    }
+    if (e.reserved != 0) bad(cat("reserved byte is not zero"));
+    for (std::size_t i = vbytes; i < 8; ++i) {
+      if (e.min[i] != 0 || e.max[i] != 0)
+        bad(cat("min/max bytes past the voxel size are not zero"));
+    }
+    BrickInfo& b = bricks[k];
+    b.level = l;
+    b.channel = c;
+    b.brick = at;
+    b.offset = e.offset;
+    b.stored_size = e.stored_size;
+    b.checksum = e.checksum;
+    b.min = decode_value(type, e.min);
+    b.max = decode_value(type, e.max);
+    std::memcpy(b.uniform.data(), e.min, 4);
+    b.label_first = e.label_first;
+    b.label_count = e.label_count;
+    for (int comp = 0; comp < 4; ++comp) {
+      if (b.min[comp] > b.max[comp]) bad(cat("min > max"));
+    }
+    check_entry_codec(e, b, brick_bytes(c), bad);
+    if (b.codec != Codec::kUniform) spans.push_back({e.offset, e.offset + e.stored_size, k});
+    check_entry_labels(e, b, type, bad);
+  }
+
+  // The codec and its payload: a uniform brick has none; a raw one is exactly `raw_bytes`, a
+  // zstd one smaller; both aligned and inside the payload area. Sets b.codec.
+  template <typename Bad>
+  void check_entry_codec(const IndexEntry& e, BrickInfo& b, std::uint64_t raw_bytes,
+                         const Bad& bad) const {
+    const FileHeader& h = header;
+    switch (e.codec) {
+      case std::uint8_t(Codec::kUniform):
+        b.codec = Codec::kUniform;
+        if (e.offset || e.stored_size || e.checksum)
+          bad(cat("uniform brick with a payload offset, size or checksum"));
+        if (std::memcmp(e.min, e.max, 8) != 0) bad(cat("uniform brick with min != max"));
+        break;
+      case std::uint8_t(Codec::kRaw):
+      case std::uint8_t(Codec::kZstd): {
+        b.codec = Codec(e.codec);
+        if (b.codec == Codec::kRaw && e.stored_size != raw_bytes)
+          bad(cat("raw brick of ", e.stored_size, " bytes, expected ", raw_bytes));
+        if (b.codec == Codec::kZstd && (e.stored_size == 0 || e.stored_size >= raw_bytes))
+          bad(cat("zstd brick of ", e.stored_size, " bytes (must be in [1, ", raw_bytes, "))"));
+        if (e.offset % kPayloadAlignment != 0)
+          bad(cat("payload offset ", e.offset, " is not a multiple of 4096"));
+        auto end = add(e.offset, e.stored_size);
+        if (e.offset < h.payload_offset || !end || *end > h.payload_end) {
+          bad(cat("payload [", e.offset, ", +", e.stored_size, ") lies outside the payload area [",
+                  h.payload_offset, ", ", h.payload_end, ")"));
+        }
+        break;
+      }
+      default:
+        bad(cat("unknown codec ", int(e.codec)));
+    }
+  }
+
+  // A label channel's brick names a non-empty, strictly ascending run of the file's label IDs
+  // that matches its min and max; any other channel's brick names none.
+  template <typename Bad>
+  void check_entry_labels(const IndexEntry& e, const BrickInfo& b, ChannelType type,
+                          const Bad& bad) const {
+    if (!is_label_type(type)) {
+      if (e.label_count != 0 || e.label_first != 0)
+        bad(cat("label set on a channel that is not a label channel"));
+      return;
+    }
+    if (e.label_count == 0 || std::uint64_t(e.label_first) + e.label_count > header.labels_count) {
+      bad(cat("label set [", e.label_first, ", +", e.label_count, ") is empty or outside the ",
+              header.labels_count, " label IDs"));
+    }
+    const std::uint32_t limit = type == ChannelType::kUint8 ? 255 : 65535;
+    const std::uint32_t* ids = label_ids.data() + e.label_first;
+    for (std::uint32_t i = 0; i < e.label_count; ++i) {
+      if (ids[i] > limit || (i > 0 && ids[i] <= ids[i - 1]))
+        bad(cat("label set is not strictly ascending within the type's range"));
+    }
+    if (ids[0] != std::uint64_t(b.min[0]) || ids[e.label_count - 1] != std::uint64_t(b.max[0])) {
+      bad(cat("label set does not match min/max"));
+    }
+  }
+
+  // Payloads do not overlap, and the last one's aligned end is payload_end.
+  void check_payload_spans(std::vector<PayloadSpan>& spans) const {
+    const FileHeader& h = header;
     std::sort(spans.begin(), spans.end(),
-              [](const Span& a, const Span& b) { return a.offset < b.offset; });
+              [](const PayloadSpan& a, const PayloadSpan& b) { return a.offset < b.offset; });
     std::uint64_t cursor = h.payload_offset;
-    for (const Span& s : spans) {
+    for (const PayloadSpan& s : spans) {
       if (s.offset < cursor)
         fail_brick(DefectKind::kIndexEntry, bricks[s.k],
                    cat("payload at ", s.offset, " overlaps the previous brick (which ends at ",
@@ -410,6 +459,12 @@ struct Reader::Impl {
       fail(DefectKind::kIndexEntry, cat("payload_end ", h.payload_end,
                                         " is not the aligned end of the last payload ", cursor));
   }
+
+  // Reader::check's parts (defined after the Reader's members).
+  std::optional<Finding> check_brick(const BrickInfo& b, bool deep) const;
+  std::optional<Finding> check_decoded(const BrickInfo& b,
+                                       const std::vector<std::uint8_t>& buf) const;
+  void check_padding(std::vector<Finding>& findings) const;
 
   ZSTD_DCtx* acquire() const {
     {
@@ -694,97 +749,89 @@ std::vector<std::uint8_t> Reader::read_level(int channel, int level, int threads
   return out;
 }
 
-std::vector<Finding> Reader::check(bool deep, int threads) const {
-  const Impl& m = *impl_;
-  const std::size_t count = m.bricks.size();
-  // At most one finding per brick (its first problem), sorted into index order at the end.
-  std::mutex found_mutex;
-  std::vector<std::pair<std::size_t, Finding>> per_brick;
-  parallel_for(std::int64_t(count), resolve_threads(threads), [&](std::int64_t i) {
-    const BrickInfo& b = m.bricks[std::size_t(i)];
-    auto add_finding = [&](Finding f) {
-      std::lock_guard<std::mutex> lock(found_mutex);
-      per_brick.emplace_back(std::size_t(i), std::move(f));
-    };
-    auto found = [&](DefectKind kind, const std::string& what) {
-      add_finding(m.finding(kind, b.level, b.channel, b.brick, what));
-    };
-    if (b.codec != Codec::kUniform) {
-      std::uint64_t sum = xxh64(m.base + b.offset, std::size_t(b.stored_size));
-      if (sum != b.checksum) {
-        found(DefectKind::kPayloadChecksum, cat("payload checksum mismatch (stored ",
-                                                hex64(b.checksum), ", computed ", hex64(sum), ")"));
-        return;
-      }
+namespace {
+
+// "v0,v1,..." of the first `n` values.
+template <typename Values>
+std::string comma_list(const Values& v, std::size_t n) {
+  std::string t;
+  for (std::size_t k = 0; k < n; ++k)
+    t += cat(k ? "," : "", v[k]);
+  return t;
+}
+
+}  // namespace
+
+// Reader::check's look at one brick: its payload checksum, and with `deep` its decoded voxels'
+// min/max and (labels) ID set against the index. The brick's first problem, if any.
+std::optional<Finding> Reader::Impl::check_brick(const BrickInfo& b, bool deep) const {
+  if (b.codec != Codec::kUniform) {
+    std::uint64_t sum = xxh64(base + b.offset, std::size_t(b.stored_size));
+    if (sum != b.checksum) {
+      return finding(DefectKind::kPayloadChecksum, b.level, b.channel, b.brick,
+                     cat("payload checksum mismatch (stored ", hex64(b.checksum), ", computed ",
+                         hex64(sum), ")"));
     }
-    if (!deep) return;
-    std::vector<std::uint8_t> buf(m.brick_bytes(b.channel));
-    try {
-      m.decode(b, buf.data(), buf.size(), false);
-    } catch (const FileDefect& e) {
-      add_finding(e.finding());
-      return;
+  }
+  if (!deep) return std::nullopt;
+  std::vector<std::uint8_t> buf(brick_bytes(b.channel));
+  try {
+    decode(b, buf.data(), buf.size(), false);
+  } catch (const FileDefect& e) {
+    return e.finding();
+  }
+  return check_decoded(b, buf);
+}
+
+// The decoded voxels `buf` of brick b against its index entry: min/max per component, and for
+// a label channel the set of IDs present.
+std::optional<Finding> Reader::Impl::check_decoded(const BrickInfo& b,
+                                                   const std::vector<std::uint8_t>& buf) const {
+  const ChannelType type = channels[std::size_t(b.channel)].type;
+  const std::size_t vb = channel_type_bytes(type);
+  std::array<std::int64_t, 4> lo{}, hi{};
+  lo.fill(std::numeric_limits<std::int64_t>::max());
+  hi.fill(std::numeric_limits<std::int64_t>::min());
+  std::vector<bool> seen(is_label_type(type) ? 65536 : 0);
+  for (std::size_t v = 0; v < buf.size(); v += vb) {
+    auto val = decode_value(type, buf.data() + v);
+    for (int c = 0; c < channel_type_components(type); ++c) {
+      lo[c] = std::min(lo[c], val[c]);
+      hi[c] = std::max(hi[c], val[c]);
     }
-    const ChannelType type = m.channels[std::size_t(b.channel)].type;
-    const std::size_t vb = channel_type_bytes(type);
-    std::array<std::int64_t, 4> lo{}, hi{};
-    lo.fill(std::numeric_limits<std::int64_t>::max());
-    hi.fill(std::numeric_limits<std::int64_t>::min());
-    std::vector<bool> seen(is_label_type(type) ? 65536 : 0);
-    for (std::size_t v = 0; v < buf.size(); v += vb) {
-      auto val = decode_value(type, buf.data() + v);
-      for (int c = 0; c < channel_type_components(type); ++c) {
-        lo[c] = std::min(lo[c], val[c]);
-        hi[c] = std::max(hi[c], val[c]);
-      }
-      if (!seen.empty()) seen[std::size_t(val[0])] = true;
+    if (!seen.empty()) seen[std::size_t(val[0])] = true;
+  }
+  const std::size_t comps = std::size_t(channel_type_components(type));
+  for (std::size_t c = 0; c < comps; ++c) {
+    if (lo[c] != b.min[c] || hi[c] != b.max[c]) {
+      return finding(DefectKind::kBrickRange, b.level, b.channel, b.brick,
+                     cat("decoded min/max (", comma_list(lo, comps), ")..(", comma_list(hi, comps),
+                         ") differ from the index (", comma_list(b.min, comps), ")..(",
+                         comma_list(b.max, comps), ")"));
     }
-    const int comps = channel_type_components(type);
-    for (int c = 0; c < comps; ++c) {
-      if (lo[c] != b.min[c] || hi[c] != b.max[c]) {
-        auto list = [&](const std::array<std::int64_t, 4>& v) {
-          std::string t;
-          for (int k = 0; k < comps; ++k)
-            t += cat(k ? "," : "", v[k]);
-          return t;
-        };
-        found(DefectKind::kBrickRange,
-              cat("decoded min/max (", list(lo), ")..(", list(hi), ") differ from the index (",
-                  list(b.min), ")..(", list(b.max), ")"));
-        return;
-      }
-    }
-    if (!seen.empty()) {
-      std::vector<std::uint32_t> ids;
-      for (std::uint32_t id = 0; id < 65536; ++id)
-        if (seen[id]) ids.push_back(id);
-      const std::vector<std::uint32_t> index_ids = brick_labels(b);
-      if (ids != index_ids) {
-        auto list = [](const std::vector<std::uint32_t>& v) {
-          std::string t;
-          for (std::size_t k = 0; k < v.size(); ++k)
-            t += cat(k ? "," : "", v[k]);
-          return t;
-        };
-        found(DefectKind::kBrickLabels, cat("decoded label set {", list(ids),
-                                            "} differs from the index {", list(index_ids), "}"));
-      }
-    }
-  });
-  std::sort(per_brick.begin(), per_brick.end(),
-            [](const auto& a, const auto& b) { return a.first < b.first; });
-  std::vector<Finding> findings;
-  for (auto& f : per_brick)
-    findings.push_back(std::move(f.second));
-  // Padding: every byte outside the header, payloads, metadata, index and label IDs is zero.
-  // One finding per padding run with a non-zero byte, in file order.
+  }
+  if (seen.empty()) return std::nullopt;
+  std::vector<std::uint32_t> ids;
+  for (std::uint32_t id = 0; id < 65536; ++id)
+    if (seen[id]) ids.push_back(id);
+  const std::vector<std::uint32_t> index_ids(label_ids.begin() + b.label_first,
+                                             label_ids.begin() + b.label_first + b.label_count);
+  if (ids == index_ids) return std::nullopt;
+  return finding(DefectKind::kBrickLabels, b.level, b.channel, b.brick,
+                 cat("decoded label set {", comma_list(ids, ids.size()),
+                     "} differs from the index {", comma_list(index_ids, index_ids.size()), "}"));
+}
+
+// Padding: every byte outside the header, payloads, metadata, index and label IDs is zero. One
+// finding per padding run with a non-zero byte, in file order, appended to `findings`.
+void Reader::Impl::check_padding(std::vector<Finding>& findings) const {
   auto check_zero = [&](std::uint64_t from, std::uint64_t to, const BrickInfo* after) {
     for (std::uint64_t p = from; p < to; ++p) {
-      if (m.base[p] != 0) {
+      if (base[p] != 0) {
         Finding f;
         if (after) {
-          f = m.finding(DefectKind::kPadding, after->level, after->channel, after->brick,
-                        cat("non-zero padding byte at offset ", p, " after the payload"));
+          f = finding(DefectKind::kPadding, after->level, after->channel, after->brick,
+                      cat("non-zero padding byte at offset ", p, " after the payload"));
         } else {
           f.kind = DefectKind::kPadding;
           f.detail = cat("non-zero padding byte at offset ", p);
@@ -794,18 +841,37 @@ std::vector<Finding> Reader::check(bool deep, int threads) const {
       }
     }
   };
-  check_zero(detail::kHeaderSize, m.header.payload_offset, nullptr);
+  check_zero(detail::kHeaderSize, header.payload_offset, nullptr);
   std::vector<const BrickInfo*> stored;
-  for (const BrickInfo& b : m.bricks)
+  for (const BrickInfo& b : bricks)
     if (b.codec != Codec::kUniform) stored.push_back(&b);
   std::sort(stored.begin(), stored.end(),
             [](const BrickInfo* a, const BrickInfo* b) { return a->offset < b->offset; });
   for (std::size_t i = 0; i < stored.size(); ++i) {
     std::uint64_t end = stored[i]->offset + stored[i]->stored_size;
-    std::uint64_t next = i + 1 < stored.size() ? stored[i + 1]->offset : m.header.payload_end;
+    std::uint64_t next = i + 1 < stored.size() ? stored[i + 1]->offset : header.payload_end;
     check_zero(end, next, stored[i]);
   }
-  check_zero(m.header.metadata_offset + m.header.metadata_size, m.header.index_offset, nullptr);
+  check_zero(header.metadata_offset + header.metadata_size, header.index_offset, nullptr);
+}
+
+std::vector<Finding> Reader::check(bool deep, int threads) const {
+  const Impl& m = *impl_;
+  // At most one finding per brick (its first problem), sorted into index order at the end.
+  std::mutex found_mutex;
+  std::vector<std::pair<std::size_t, Finding>> per_brick;
+  parallel_for(std::int64_t(m.bricks.size()), resolve_threads(threads), [&](std::int64_t i) {
+    std::optional<Finding> f = m.check_brick(m.bricks[std::size_t(i)], deep);
+    if (!f) return;
+    std::lock_guard<std::mutex> lock(found_mutex);
+    per_brick.emplace_back(std::size_t(i), std::move(*f));
+  });
+  std::sort(per_brick.begin(), per_brick.end(),
+            [](const auto& a, const auto& b) { return a.first < b.first; });
+  std::vector<Finding> findings;
+  for (auto& f : per_brick)
+    findings.push_back(std::move(f.second));
+  m.check_padding(findings);
   return findings;
 }
 
