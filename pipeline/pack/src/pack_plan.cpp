@@ -35,29 +35,16 @@ std::string pack_input_fingerprint(const Config& config, const StackInputs& inpu
   return fp.str();
 }
 
-PackPlan plan_pack(const Config& config, const StageOptions& options,
-                   const BodyBoundsSource& body_bounds) {
-  PackPlan plan;
-  plan.inputs = read_stack_inputs(config);
-  const StackInputs& inputs = plan.inputs;
-  const std::vector<SliceFile>& stack = inputs.rgb;
-  const int n = int(stack.size());
-  plan.n = n;
-  const std::string tpath = transforms_path(config);
-  const StackTransforms& transforms = inputs.transforms;
-  const bool has_ct = config.ct.has_value(), has_labels = config.seg.has_value();
-  plan.has_ct = has_ct;
-  plan.has_labels = has_labels;
+namespace {
 
-  // One unit of work: its input fingerprint covers every intermediate read.
-  plan.input = pack_input_fingerprint(config, inputs);
-
-  const int f = config.pack.downsample;
-  plan.f = f;
+// The part of the registered frame packed: all of it, or (pack.crop_margin_px) the union of the
+// body masks plus the margin, its corners moved out to multiples of f so that the cropped grid
+// is a sub-box of the uncropped one, downsampling included. Sets plan.full, body, box, cropped,
+// crop_meta and out_size.
+void plan_crop(const Config& config, const BodyBoundsSource& body_bounds, PackPlan& plan) {
+  const int n = plan.n, f = plan.f;
+  const StackTransforms& transforms = plan.inputs.transforms;
   const cv::Size full(transforms.width, transforms.height);
-  // The part of the registered frame packed: all of it, or (pack.crop_margin_px) the union of
-  // the body masks plus the margin, its corners moved out to multiples of f so that the cropped
-  // grid is a sub-box of the uncropped one, downsampling included.
   cv::Rect box(0, 0, full.width, full.height);
   json crop_meta = nullptr;
   if (config.pack.crop_margin_px) {
@@ -82,7 +69,13 @@ PackPlan plan_pack(const Config& config, const StageOptions& options,
   plan.cropped = box.size() != full;
   plan.crop_meta = crop_meta;
   plan.out_size = out_size;
+}
 
+// The writer's grid (dims, spacing, origin in mm), bricks, compression, threads and channels.
+void plan_writer(const Config& config, const StageOptions& options, PackPlan& plan) {
+  const int n = plan.n, f = plan.f;
+  const cv::Size out_size = plan.out_size;
+  const cv::Rect box = plan.box;
   format::WriterOptions& wo = plan.wo;
   wo.dims = {out_size.width, out_size.height, n};
   wo.spacing_mm = {config.spacing_mm[0] * f, config.spacing_mm[1] * f, config.spacing_mm[2]};
@@ -95,27 +88,39 @@ PackPlan plan_pack(const Config& config, const StageOptions& options,
   wo.compress = config.pack.zstd_level > 0;
   wo.threads = options.threads > 0 ? options.threads : config.pack.threads;
   wo.channels.push_back({"rgba", format::ChannelType::kRgba8});
-  if (has_ct) wo.channels.push_back({"ct", format::ChannelType::kInt16});
-  if (has_labels) wo.channels.push_back({"labels", format::ChannelType::kUint16});
+  if (plan.has_ct) wo.channels.push_back({"ct", format::ChannelType::kInt16});
+  if (plan.has_labels) wo.channels.push_back({"labels", format::ChannelType::kUint16});
+}
 
-  // Label table: the palette, or the IDs found in the labels stage report.
+// Label table: the palette, or the IDs found in the labels stage report.
+void plan_labels(const Config& config, PackPlan& plan) {
+  if (!plan.has_labels) return;
+  format::WriterOptions& wo = plan.wo;
   std::vector<PaletteEntry>& palette = plan.palette;
-  if (has_labels) {
-    if (!config.seg->palette.empty()) {
-      palette = read_palette(config.seg->palette);
-    } else {
-      std::string report = stage_dir(config, "labels") + "/report.json";
-      if (fs::exists(report)) {
-        json r = json::parse(read_file(report));
-        for (auto& id : r.value("ids_present", json::array()))
-          palette.push_back({id.get<std::uint16_t>(), cat("label ", id.get<int>()), {0, 0, 0}});
-      }
+  if (!config.seg->palette.empty()) {
+    palette = read_palette(config.seg->palette);
+  } else {
+    std::string report = stage_dir(config, "labels") + "/report.json";
+    if (fs::exists(report)) {
+      json r = json::parse(read_file(report));
+      for (auto& id : r.value("ids_present", json::array()))
+        palette.push_back({id.get<std::uint16_t>(), cat("label ", id.get<int>()), {0, 0, 0}});
     }
-    for (const auto& e : palette)
-      if (e.id != 0) wo.label_table.push_back({e.id, e.name, e.colour});
   }
+  for (const auto& e : palette)
+    if (e.id != 0) wo.label_table.push_back({e.id, e.name, e.colour});
+}
 
-  // Metadata: slices, registration quality, provenance (content hashes only: reproducible).
+// Metadata: slices, registration quality, provenance (content hashes only: reproducible). Sets
+// plan.missing, black and duplicated too.
+void plan_metadata(const Config& config, PackPlan& plan) {
+  const int n = plan.n, f = plan.f;
+  const bool has_ct = plan.has_ct, has_labels = plan.has_labels;
+  const std::vector<SliceFile>& stack = plan.inputs.rgb;
+  const StackTransforms& transforms = plan.inputs.transforms;
+  const std::string tpath = transforms_path(config);
+  const json& crop_meta = plan.crop_meta;
+  format::WriterOptions& wo = plan.wo;
   json slices_meta = json::object();
   std::vector<int> numbers, jumps;
   std::vector<int>&missing = plan.missing, &black = plan.black, &duplicated = plan.duplicated;
@@ -177,7 +182,24 @@ PackPlan plan_pack(const Config& config, const StageOptions& options,
                             ? std::string()
                             : hash_of_file_or_empty(config.registration.overrides)},
           {"rgb_names_sizes", hex64(xxh64(names.data(), names.size()))}}}}}};
+}
 
+}  // namespace
+
+PackPlan plan_pack(const Config& config, const StageOptions& options,
+                   const BodyBoundsSource& body_bounds) {
+  PackPlan plan;
+  plan.inputs = read_stack_inputs(config);
+  plan.n = int(plan.inputs.rgb.size());
+  plan.has_ct = config.ct.has_value();
+  plan.has_labels = config.seg.has_value();
+  // One unit of work: its input fingerprint covers every intermediate read.
+  plan.input = pack_input_fingerprint(config, plan.inputs);
+  plan.f = config.pack.downsample;
+  plan_crop(config, body_bounds, plan);
+  plan_writer(config, options, plan);
+  plan_labels(config, plan);
+  plan_metadata(config, plan);
   return plan;
 }
 
