@@ -3,7 +3,9 @@
 # sharded stage, afterok dependencies, --kill-on-invalid-dep, shard bounds from the array task;
 # whole-slab shards with the pack in the per-slice job, and shards of the slices with a pack step
 # of its own), run here as SLURM would run it (each array task with its SLURM_ARRAY_TASK_ID, in
-# chain order), gives the local run's packed file byte for byte; and its usage errors.
+# chain order), gives the local run's packed file byte for byte; that chain is the one the planner
+# scripts/cluster_plan.py describes and the one workflow/Snakefile runs (a Snakemake dry run's
+# commands; compare_chains.py); and the usage errors of vispack-slurm and the Snakefile.
 # Usage: tests/cluster/dry_run_test.sh BIN_DIR
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
@@ -18,6 +20,50 @@ cp -a "$tmp/ph" "$tmp/local"
 cp -a "$tmp/ph" "$tmp/my dir"  # a path with a space
 config="$tmp/my dir/config.json"
 "$bin/vispack-run" "$tmp/local/config.json" --quiet >/dev/null
+
+# agree SHARDS: the chain the planner (scripts/cluster_plan.py) describes is the one the dry run's
+# job scripts (split into $tmp/run, in chain order) run, each array task its command with its CPUs
+# (the scripts run with `exec` printing the command), and the one Snakemake prints (--dry-run) and
+# runs, each command once, a step after the step before (tests/cluster/compare_chains.py).
+agree() {
+  local shards=$1 k=0 script name cpus tasks i exe
+  python3 "$root/scripts/cluster_plan.py" "$config" --bin "$bin" --shards "$shards" \
+    --partition short >"$tmp/plan.json" || fail "$shards shards: cluster_plan.py failed"
+  : >"$tmp/slurm.txt"
+  for script in "$tmp"/run/*.sh; do
+    name=$(basename "${scripts[k]}" .sh) && name=${name#[0-9][0-9]-} && k=$((k + 1))
+    cpus=$(sed -n 's/^#SBATCH --cpus-per-task=//p' "$script")
+    sed 's/^exec /exec python3 -c "import shlex, sys; print(shlex.join(sys.argv[1:]))" /' "$script" >"$tmp/echo.sh"
+    tasks=1
+    grep -q '^#SBATCH --array=' "$script" && tasks=$shards
+    for ((i = 0; i < tasks; ++i)); do
+      printf '%s\t%s\t%s\n' "$name" "$cpus" "$(SLURM_ARRAY_TASK_ID=$i bash "$tmp/echo.sh")" >>"$tmp/slurm.txt"
+    done
+  done
+  local snakes=()
+  if command -v snakemake >/dev/null; then
+    # What Snakemake would run (--dry-run --printshellcmds), and what it does run: the rules with
+    # stand-ins for the executables that log their commands ($tmp/stub-bin; vispack-run --plan
+    # is the real one's), as the real ones, in the order they ran.
+    mkdir -p "$tmp/snake" "$tmp/stub-bin"
+    for exe in "$bin"/vispack-*; do
+      printf '#!/bin/sh\n[ "$2" = --plan ] && exec %q "$@"\nflock %q python3 -c "import shlex, sys; print(shlex.join(sys.argv[1:]))" %q "$@" >>%q\n' \
+        "$exe" "$tmp/stub.log" "$exe" "$tmp/stub.log" >"$tmp/stub-bin/${exe##*/}"
+      chmod +x "$tmp/stub-bin/${exe##*/}"
+    done
+    (cd "$tmp/snake" && snakemake -s "$root/workflow/Snakefile" -n -p --forceall --cores 64 \
+       --config vispack_config="$config" shards="$shards" bin="$bin" threads=1 partition=short) \
+      >"$tmp/snake-dry.txt" 2>&1 || fail "$shards shards: snakemake -n: $(cat "$tmp/snake-dry.txt")"
+    rm -f "$tmp/stub.log"
+    (cd "$tmp/snake" && snakemake -s "$root/workflow/Snakefile" --quiet --forceall --cores 64 \
+       --config vispack_config="$config" shards="$shards" bin="$tmp/stub-bin" threads=1 \
+       partition=short flags="$tmp/snake/flags") >"$tmp/snake-run.txt" 2>&1 ||
+      fail "$shards shards: snakemake with stand-in executables: $(cat "$tmp/snake-run.txt")"
+    snakes=("$tmp/snake-dry.txt" "$tmp/stub.log")
+  fi
+  python3 "$root/tests/cluster/compare_chains.py" "$tmp/plan.json" "$tmp/slurm.txt" "${snakes[@]}" ||
+    fail "$shards shards: vispack-slurm, the Snakefile and the planner disagree"
+}
 
 # dry_chain SHARDS EXPECTED_JOBS ARRAYS: the dry run's job names and sbatch lines, then its
 # scripts run as SLURM would run them (each array task with its ID, in chain order) on a fresh
@@ -43,6 +89,7 @@ dry_chain() {
                          /^### \// { n++; f = sprintf("%s/%02d.sh", dir, n); next }
                          f { print > f }' "$tmp/dry.out"
   [[ $(ls "$tmp/run" | wc -l) == "$jobs" ]] || fail "could not split the $jobs job scripts out of the dry run"
+  agree "$shards"
   local script i
   for script in "$tmp"/run/*.sh; do
     if grep -q '^#SBATCH --array=' "$script"; then
@@ -110,8 +157,16 @@ if command -v snakemake >/dev/null; then
     fail "Snakefile: merge_threads=2 is not the merge's --threads"
   grep -q -- 'vispack-vdb --config .* --threads 1 --quiet' <<<"$snake" ||
     fail "Snakefile: merge_threads changed another rule's threads"
+  # Its errors name the config key at fault (the planner's checks).
+  for wrong in "from=bogus|--config from 'bogus' is not a stage" "shards=0|--config shards '0' is not a positive integer"; do
+    if snake=$(cd "$tmp/local" && snakemake -s "$root/workflow/Snakefile" -n --cores 1 \
+         --config vispack_config="$tmp/local/config.json" bin="$bin" "${wrong%%|*}" 2>&1); then
+      fail "Snakefile: ${wrong%%|*} accepted"
+    fi
+    grep -qF -- "workflow/Snakefile: ${wrong#*|}" <<<"$snake" || fail "Snakefile ${wrong%%|*}: $snake"
+  done
 else
-  echo "dry_run_test: snakemake not installed: its merge_threads not checked"
+  echo "dry_run_test: snakemake not installed: the Snakefile's chain and merge_threads not checked"
 fi
 
 # Usage errors: one line, exit 2 (3 for a missing config).
