@@ -165,12 +165,18 @@ cv::Mat predict_ct(const cv::Mat& rgb, const double coef[kFeatures]) {
   return out;
 }
 
-// A soft body map (0 outside, 1 inside, a ramp across the edge) reduced to the body: the
-// largest component of its half level, grown by two pixels for the soft edge. Fiducial tubes
-// and debris in the gel, which the other modality does not show, are cut off.
-cv::Mat body_only(cv::Mat soft) {
+// A soft body map (0 outside, 1 inside, a ramp across the edge) reduced to the body: every
+// part of its half level that the part rule keeps (outline.h; `rgb`, when given, the colour
+// slice for its colour test, CV_32FC3 in 0..1), grown by two pixels for the soft edge. Fiducial
+// tubes, holders and debris, which the other modality does not show, are cut off; arms, legs
+// and toes all stay (the header: why the anchor must see them all).
+cv::Mat body_only(cv::Mat soft, double min_part_px, const cv::Mat& rgb = cv::Mat()) {
+  PartRule rule;
+  rule.min_area_px = min_part_px;
+  cv::Mat rgb8;
+  if (!rgb.empty()) rgb.convertTo(rgb8, CV_8UC3, 255.0);
   cv::Mat keep;
-  cv::dilate(largest_component(soft > 0.5f), keep,
+  cv::dilate(body_parts(soft > 0.5f, rule, nullptr, rgb8), keep,
              cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(5, 5)));
   soft.setTo(cv::Scalar(0.0), keep == 0);
   return soft;
@@ -298,7 +304,7 @@ AnchorEstimate estimate_ct_anchor(const RegisterFrame& frame, const cv::Mat& ct_
     // alignment (rotation most). Everything outside the body (grown by one pixel, its partial-
     // volume edge) becomes air.
     cv::Mat keep;
-    cv::dilate(ct_body_mask(ct32, options.hu_threshold), keep,
+    cv::dilate(ct_body_mask(ct32, options.hu_threshold, options.min_part_ct_px), keep,
                cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(3, 3)));
     ct32.setTo(cv::Scalar(kHuLow), keep == 0);
   }
@@ -341,14 +347,16 @@ AnchorEstimate estimate_ct_anchor(const RegisterFrame& frame, const cv::Mat& ct_
   // Working-grid template → input matrix.
   cv::Matx23d m;
   bool have = false;
+  // The part rule's minimum area on the working grid (CT pixels → colour pixels → working).
+  const double min_part_work = options.min_part_ct_px * ct_to_rgb.scale * ct_to_rgb.scale * sx * sy;
   const double capture_scale =
       std::min(1.0, double(kCaptureEdge) / std::max(colour.cols, colour.rows));
   const cv::Mat soft_ct = [&] {
     cv::Mat s;
     ct_work.convertTo(s, CV_32F, 1.0 / 600.0, -(options.hu_threshold - 300.0) / 600.0);
-    return body_only(cv::Mat(cv::max(cv::min(s, 1.0), 0.0)));
+    return body_only(cv::Mat(cv::max(cv::min(s, 1.0), 0.0)), min_part_work);
   }();
-  const cv::Mat soft_colour = body_only(colour_softbody(colour));
+  const cv::Mat soft_colour = body_only(colour_softbody(colour), min_part_work, colour);
   auto fine = [&](cv::Matx23d start, double* rho_out) -> std::optional<cv::Matx23d> {
     // Two passes: half working resolution, then full; the polynomial refitted before each.
     double rho = -1.0;

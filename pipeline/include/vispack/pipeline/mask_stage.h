@@ -12,6 +12,7 @@
 #include <opencv2/core.hpp>
 
 #include "vispack/pipeline/config.h"
+#include "vispack/pipeline/outline.h"
 #include "vispack/pipeline/stage_run.h"
 #include "vispack/pipeline/work_layout.h"
 
@@ -53,7 +54,8 @@ class MaskStageJob {
   const Config& config_;
   const StackInputs& inputs_;
   StageRun run_;
-  std::vector<double> coverage_;  // per slice of the range, -1 = not computed
+  std::vector<double> coverage_;   // per slice of the range, -1 = not computed
+  std::vector<PartCounts> parts_;  // per slice of the range: body parts kept and removed
   std::atomic<long long> compute_ns_{0};
   std::atomic<int> colour_only_{0};
   std::mutex gel_mutex_;

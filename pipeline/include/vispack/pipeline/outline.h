@@ -23,9 +23,30 @@ namespace vispack::pipeline {
 
 // Opening radius (CT pixels) that cuts a head-holder or table from the body in the CT.
 inline constexpr int kCtDetachPx = 2;
+// A piece the opening removed that reaches farther than this (CT pixels) from every kept part is
+// a holder or table touching the body: none of it comes back.
+inline constexpr int kHolderReachPx = 3 * (kCtDetachPx + 1);
+// Parts more elongated than this (area / (π r²), r the largest inscribed radius) are holders.
+inline constexpr double kMaxPartElongation = 7.0;
+// RGB units by which a tissue part's mean green or blue may exceed its mean red.
+inline constexpr double kTissueColourSlack = 10.0;
 
-// Largest 8-connected component of a 0/255 mask (empty mask → empty mask).
-cv::Mat largest_component(const cv::Mat& mask);
+// What the part rule keeps. `min_area_px`: parts with fewer pixels are removed (0: none);
+// `max_elongation`: parts above are removed (0: no shape test).
+struct PartRule {
+  double min_area_px = 0.0;
+  double max_elongation = kMaxPartElongation;
+};
+// Parts of one slice kept and removed by the rule (for the stage reports).
+struct PartCounts {
+  int kept = 0;
+  int removed = 0;
+};
+// The part rule (above) on a 0/255 mask: every 8-connected part that passes is kept. With a
+// non-empty `rgb` (CV_8UC3, same size) the colour test applies too. `counts` (optional) receives
+// the parts kept and removed. Throws Error when `rgb` differs in size.
+cv::Mat body_parts(const cv::Mat& mask, const PartRule& rule, PartCounts* counts = nullptr,
+                   const cv::Mat& rgb = cv::Mat());
 // Fills holes: background not 4-connected to the image border becomes 255.
 cv::Mat fill_holes(const cv::Mat& mask);
 // Opening with a disc of `radius` pixels (radius 0: unchanged).
@@ -37,14 +58,19 @@ cv::Mat ct_hu_float(const cv::Mat& ct_hu);
 // Throws InputError naming `what` unless `rgb` is a non-empty CV_8UC3 image.
 void require_rgb_slice(const cv::Mat& rgb, const char* what);
 
-// The body at CT resolution (see above). `ct_hu`: CV_32F (or CV_16S) HU.
-cv::Mat ct_body_mask(const cv::Mat& ct_hu, double hu_threshold);
+// The body at CT resolution (see above). `ct_hu`: CV_32F (or CV_16S) HU; `min_part_px`: the
+// minimum part area in CT pixels (mask.min_part_mm2 / CT pixel area); `counts` (optional): the
+// parts kept and removed by the rule.
+cv::Mat ct_body_mask(const cv::Mat& ct_hu, double hu_threshold, double min_part_px,
+                     PartCounts* counts = nullptr);
 
 // Median colour (RGB) of a 4-pixel frame along the border of an RGB CV_8UC3 slice.
 cv::Vec3f estimate_gel_colour(const cv::Mat& rgb);
 // 0/255 where the RGB colour is farther than `distance` from `gel`.
 cv::Mat non_gel(const cv::Mat& rgb, const cv::Vec3f& gel, double distance);
-// Colour-only body: non_gel, opening, largest component, holes filled.
-cv::Mat colour_body_mask(const cv::Mat& rgb, const cv::Vec3f& gel, double distance, int opening_px);
+// Colour-only body: non_gel, opening, the part rule with the colour test (`min_part_px` in
+// pixels of `rgb`), holes filled. `counts` (optional): the parts kept and removed.
+cv::Mat colour_body_mask(const cv::Mat& rgb, const cv::Vec3f& gel, double distance, int opening_px,
+                         double min_part_px, PartCounts* counts = nullptr);
 
 }  // namespace vispack::pipeline
