@@ -277,8 +277,9 @@ cv::Mat colour_body_mask(const cv::Mat& rgb, const cv::Vec3f& gel, double distan
                          double min_part_px, PartCounts* counts) {
   PartRule rule;
   rule.min_area_px = min_part_px;
-  return fill_holes(
-      body_parts(open_disc(non_gel(rgb, gel, distance), opening_px), rule, counts, rgb));
+  // Holes filled before the rule, which judges a part by its outline.
+  return body_parts(fill_holes(open_disc(non_gel(rgb, gel, distance), opening_px)), rule, counts,
+                    rgb);
 }
 
 }  // namespace vispack::pipeline

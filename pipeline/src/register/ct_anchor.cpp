@@ -176,13 +176,48 @@ cv::Mat body_only(cv::Mat soft, double min_part_px, const cv::Mat& rgb = cv::Mat
   cv::Mat rgb8;
   if (!rgb.empty()) rgb.convertTo(rgb8, CV_8UC3, 255.0);
   cv::Mat keep;
-  cv::dilate(body_parts(soft > 0.5f, rule, nullptr, rgb8), keep,
+  // Holes filled first: the part rule judges a part's shape by its outline (lungs and cavities
+  // would make a torso look like a band).
+  cv::dilate(body_parts(fill_holes(soft > 0.5f), rule, nullptr, rgb8), keep,
              cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(5, 5)));
   soft.setTo(cv::Scalar(0.0), keep == 0);
   return soft;
 }
 
+// The shift s that maximises the overlap Σ_p tmpl(p) · moving(p + s) of two soft body maps
+// (the convention of cv::phaseCorrelate: moving ≈ tmpl shifted by s), by one zero-padded
+// correlation through the DFT, refined by a parabola in x and in y. Every part counts with its
+// area: the shift that overlaps both legs beats the one that lays one leg on the other.
+cv::Point2d overlap_shift(const cv::Mat& tmpl, const cv::Mat& moving) {
+  const int w = cv::getOptimalDFTSize(2 * tmpl.cols), h = cv::getOptimalDFTSize(2 * tmpl.rows);
+  cv::Mat a = cv::Mat::zeros(h, w, CV_32F), b = cv::Mat::zeros(h, w, CV_32F);
+  tmpl.copyTo(a(cv::Rect(0, 0, tmpl.cols, tmpl.rows)));
+  moving.copyTo(b(cv::Rect(0, 0, moving.cols, moving.rows)));
+  cv::Mat fa, fb, product, corr;
+  cv::dft(a, fa, 0, tmpl.rows);
+  cv::dft(b, fb, 0, moving.rows);
+  cv::mulSpectrums(fb, fa, product, 0, true);  // F(moving) · conj(F(tmpl))
+  cv::idft(product, corr, cv::DFT_REAL_OUTPUT | cv::DFT_SCALE);
+  cv::Point peak;
+  cv::minMaxLoc(corr, nullptr, nullptr, nullptr, &peak);
+  auto at = [&](int x, int y) { return double(corr.at<float>((y + h) % h, (x + w) % w)); };
+  auto vertex = [](double l, double c, double r) {
+    const double d = l - 2.0 * c + r;
+    return d < 0.0 ? std::clamp(0.5 * (l - r) / d, -0.5, 0.5) : 0.0;
+  };
+  const double c = at(peak.x, peak.y);
+  const double dx = vertex(at(peak.x - 1, peak.y), c, at(peak.x + 1, peak.y));
+  const double dy = vertex(at(peak.x, peak.y - 1), c, at(peak.x, peak.y + 1));
+  // Indices past the middle are negative shifts.
+  const double sx = (peak.x > w / 2 ? peak.x - w : peak.x) + dx;
+  const double sy = (peak.y > h / 2 ? peak.y - h : peak.y) + dy;
+  return {sx, sy};
+}
+
 // Capture on soft body masks (step 2 of the header): the template → input matrix at this level.
+// At each angle two candidate shifts, phase correlation (sharp, led by the edges) and the
+// overlap of the whole maps (overlap_shift: no window, every part by its area), ranked by the
+// normalised correlation of the whole aligned maps.
 std::optional<cv::Matx23d> capture(const cv::Mat& tmpl, const cv::Mat& input) {
   cv::Mat window;
   cv::createHanningWindow(window, tmpl.size(), CV_32F);
@@ -192,11 +227,9 @@ std::optional<cv::Matx23d> capture(const cv::Mat& tmpl, const cv::Mat& input) {
     double angle = 0, score = -2;
     cv::Matx23d m;
   };
-  auto evaluate = [&](double angle) {
+  auto candidate = [&](double angle, cv::Point2d s) {
     Candidate cand;
     cand.angle = angle;
-    const cv::Mat rotated = rotate_about_centre(input, angle);
-    const cv::Point2d s = cv::phaseCorrelate(tmpl_w, rotated.mul(window));
     const double a = angle * kPi / 180.0;
     const cv::Point2d rs(std::cos(a) * s.x - std::sin(a) * s.y,
                          std::sin(a) * s.x + std::cos(a) * s.y);
@@ -209,6 +242,12 @@ std::optional<cv::Matx23d> capture(const cv::Mat& tmpl, const cv::Mat& input) {
     const float v = score.at<float>(0, 0);
     cand.score = std::isfinite(v) ? v : -1.0;
     return cand;
+  };
+  auto evaluate = [&](double angle) {
+    const cv::Mat rotated = rotate_about_centre(input, angle);
+    const Candidate phase = candidate(angle, cv::phaseCorrelate(tmpl_w, rotated.mul(window)));
+    const Candidate overlap = candidate(angle, overlap_shift(tmpl, rotated));
+    return overlap.score > phase.score ? overlap : phase;
   };
   // −10°..10°, refined by half steps and a parabola (register/rotation_search.h).
   const Candidate best = sweep_rotation(evaluate);

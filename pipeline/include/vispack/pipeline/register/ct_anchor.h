@@ -15,9 +15,10 @@
 //   2. Capture: soft body masks of both modalities (CT: HU around hu_threshold; colour:
 //      distance from the gel colour, taken as the median of the slice border), each cut to ALL
 //      its body parts by the part rule (outline.h body_parts; colour with its colour test, so
-//      the green fiducial tubes take no part), at a level whose
-//      longer edge is about 128 px; phase correlation at rotations −10°..10° (step 2.5°, best
-//      refined by a parabola), ranked by normalised correlation, then ECC (MOTION_EUCLIDEAN) on
+//      the green fiducial tubes take no part), at a level whose longer edge is about 128 px; at
+//      rotations −10°..10° (step 2.5°, best refined by a parabola) two candidate shifts, phase
+//      correlation and the largest overlap of the whole maps (a zero-padded correlation: every
+//      part weighs its area), ranked by normalised correlation, then ECC (MOTION_EUCLIDEAN) on
 //      the blurred masks. Without `initial` this runs always; with it, only if the refinement
 //      from `initial` fails.
 //   3. Refinement: a multimodal ECC. The colour → HU relation is unknown and not linear (gel,
