@@ -249,11 +249,7 @@ TEST(MaskCli, ExitCodes) {
 TEST(MaskStage, AnatomyPresetAgainstTruth) {
   TempDir dir("vispack-mask-anatomy");
   const vp::Config config = vispack::test::make_phantom_case(dir.path(), "anatomy", 3);
-  const vp::StageOptions so = vispack::test::quiet_stage_options();
-  vp::run_register_stage(config, so);
-  vp::run_mask_stage(config, so);
-  vp::run_labels_stage(config, so);
-  const vph::Score score = vph::score_work(dir / "truth", config.work_dir);
+  const vph::Score score = vispack::test::run_stages_and_score(dir.path(), config);
   ASSERT_TRUE(score.has_mask);
   std::printf("anatomy: mask stack IoU %.4f, worst %.4f (slice %d); labels %.4f\n",
               score.mask.stack_iou, score.mask.min_body_iou, score.mask.min_body_slice,
