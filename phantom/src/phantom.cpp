@@ -99,6 +99,15 @@ Plan make_plan(const PhantomOptions& options) {
     plan.anatomy.shift_x = 0.3;
     plan.anatomy.shift_y = 0.12;
     plan.anatomy.taper = true;
+    if (p.limbs) {
+      // A whole body (phantom_model.h Anatomy::limbs): its own outline along z, centred; the
+      // table 2.5 CT pixels thick (the opening of the CT mask detaches it).
+      plan.anatomy.body_scale = 1.0;
+      plan.anatomy.shift_x = plan.anatomy.shift_y = 0.0;
+      plan.anatomy.taper = false;
+      plan.anatomy.limbs = true;
+      plan.anatomy.table_px = 2.5 * p.ct_pixel_mm / p.pixel_mm;
+    }
   }
   plan.slices = options.slices > 0 ? options.slices : p.slices;
   if (options.slices < 0 || plan.slices < 2 || plan.slices > 100000) {
@@ -249,9 +258,19 @@ PhantomPreset phantom_preset(const std::string& name) {
   } else if (name == "anatomy-vhp") {
     p.width = 2048, p.height = 1216, p.slices = 16, p.pixel_mm = 0.33, p.ct_size = 1120,
     p.ct_pixel_mm = 0.66, p.defects = false, p.fiducials = false, p.varying_anatomy = true;
+  } else if (name == "male") {
+    // A whole body with arms, legs and toes at the real slice size (issue #30).
+    p.width = 2048, p.height = 1216, p.slices = 200, p.pixel_mm = 0.33, p.ct_size = 512,
+    p.ct_pixel_mm = 1.4, p.defects = false, p.fiducials = false, p.varying_anatomy = true,
+    p.limbs = true;
+  } else if (name == "male-small") {
+    p.width = 384, p.height = 228, p.slices = 64, p.pixel_mm = 0.33, p.ct_size = 282,
+    p.ct_pixel_mm = 0.495, p.defects = false, p.fiducials = false, p.varying_anatomy = true,
+    p.limbs = true;
   } else {
     throw UsageError(cat("unknown preset \"", name,
-                         "\" (use tiny, small, medium, vhp, anatomy or anatomy-vhp)"));
+                         "\" (use tiny, small, medium, vhp, anatomy, anatomy-vhp, male or "
+                         "male-small)"));
   }
   p.slice_mm = 1.0;
   return p;
@@ -404,6 +423,12 @@ PhantomSummary make_phantom(const std::string& out_dir, const PhantomOptions& op
     tt.extra["noise_sigma"] = kNoiseSigma;
     tt.extra["ct_noise_hu"] = kCtNoiseHu;
     tt.extra["preset"] = p.name;
+    if (plan.anatomy.limbs) {
+      // The CT's table on the output grid (rows, y down; top edge, bottom edge), for scoring
+      // holder pixels in a mask.
+      const double top = (H - 1) * 0.5 + model.slice(0).table_top * H * 0.5;
+      tt.extra["table_rows_px"] = {top, top + plan.anatomy.table_px};
+    }
     tt.extra["seed"] = options.seed;
     tt.extra["fiducials"] = plan.anatomy.fiducials;
     tt.extra["drift"] = options.drift;

@@ -58,6 +58,85 @@ inline double lobed_sdf(double x, double y, double a, double b, const double* lo
   return (r - (1.0 + eps)) / g;
 }
 
+// Anatomy::limbs: the torso's size along the stack (relative to the classic body): the head
+// tapering from nothing (t < 0.10), the neck widening into the shoulders, the torso, and the
+// pelvis vanishing into the legs (0.62..0.70).
+constexpr double kMaleTorso = 0.8, kMaleHead = 0.42;
+// The table's top edge (frame units below the centre): the torso's back presses on it where its
+// lobes reach that far.
+constexpr double kMaleTableTop = 0.50;
+double male_torso(double t) {
+  if (t < 0.10) return kMaleHead * taper(std::min(0.5, t / 0.12));
+  if (t < 0.62) return kMaleHead + (kMaleTorso - kMaleHead) * smoothstep(0.10, 0.15, t);
+  return kMaleTorso * (1.0 - smoothstep(0.62, 0.70, t));
+}
+
+// Places a limb of semi-axes (a, b) at height y beside the torso on side ±1 so that its nearest
+// point lies `gap` (normalised units) from the torso's outline (lobed_sdf, first order).
+double beside_torso(const SliceParams& s, double side, double y, double a, double b, double gap) {
+  double x = side * (s.a + gap + a);
+  for (int iter = 0; iter < 6; ++iter) {
+    double nearest = kFar;
+    for (int i = 0; i < 48; ++i) {
+      const double phi = 2 * kPi * i / 48.0;
+      nearest = std::min(nearest, lobed_sdf(x + a * std::cos(phi), y + b * std::sin(phi), s.a, s.b,
+                                            s.lobes.data()));
+    }
+    x += side * (gap - nearest);
+  }
+  return x;
+}
+
+// Anatomy::limbs: the arms, legs, feet and toes of slice parameter t (normalised units; `px` is
+// one output pixel, `scale` the frame height relative to 1216 px).
+void lay_out_limbs(SliceParams& s, double t, double px, double scale) {
+  s.limb_count = 0;
+  auto add = [&](double x, double y, double a, double b, double bone) {
+    if (a * b <= 0 || s.limb_count >= kMaxLimbs) return;
+    s.limbs[std::size_t(s.limb_count++)] = {x, y, a, b, bone};
+  };
+  // Arms beside the torso from the shoulders (t 0.14) to the hands (0.56): upper arm, forearm,
+  // then a flat hand. Each gap wanders between 2 and 40 px (at 1216 px height), the two sides out
+  // of phase; the right arm rests on the table (its lowest point 1 px into the table's top) for
+  // t in 0.30..0.40 and lies 0.03 above it before 0.22 and after 0.48, moving smoothly between
+  // (an arm does not jump from one slice to the next).
+  if (t >= 0.14 && t < 0.56) {
+    const double u = (t - 0.14) / 0.42;
+    const double grow = smoothstep(0.14, 0.17, t) * (1.0 - smoothstep(0.53, 0.56, t));
+    const double hand = smoothstep(0.46, 0.50, t);
+    const double a = (0.15 - 0.04 * u) * (1 - hand) + 0.05 * hand, b = (0.16 - 0.03 * u);
+    for (int side : {-1, 1}) {
+      const double wave = 0.5 + 0.5 * std::sin(2 * kPi * (1.5 * u + (side > 0 ? 0.0 : 0.4)));
+      const double gap = std::max(2.0, (2.0 + 38.0 * wave) * scale) * px;
+      const double rest = smoothstep(0.22, 0.30, t) * (1.0 - smoothstep(0.40, 0.48, t));
+      const double y = side > 0 ? s.table_top - s.y0 - b * grow - 0.03 + rest * (0.03 + px) : 0.12;
+      add(beside_torso(s, side, y, a * grow, b * grow, gap), y, a * grow, b * grow,
+          hand > 0.5 ? 0.0 : 0.25);
+    }
+  }
+  // Two legs from the pelvis (0.64) to the ankles (0.93), parting as the torso vanishes; the
+  // thighs taper to the calves.
+  if (t >= 0.64 && t < 0.93) {
+    const double part = smoothstep(0.64, 0.76, t), u = (t - 0.64) / 0.29;
+    const double a = 0.30 - 0.13 * u, b = 0.32 - 0.12 * u;
+    const double grow = smoothstep(0.64, 0.68, t);
+    for (int side : {-1, 1})
+      add(side * (0.20 + 0.16 * part), 0.05, a * grow, b * grow, 0.25);
+  }
+  // Feet (0.93..0.975): long ellipses reaching forward (−y); then five toes per foot tapering
+  // to nothing at the end of the stack.
+  if (t >= 0.93 && t < 0.975) {
+    for (int side : {-1, 1})
+      add(side * 0.36, -0.05, 0.13, 0.27, 0.2);
+  } else if (t >= 0.975) {
+    const double r = 0.05 * taper(std::min(0.5, (1.0 - t) / 0.05));
+    for (int side : {-1, 1})
+      for (int i = 0; i < 5; ++i)
+        add(side * (0.36 + 0.13 * (i - 2) * 0.9), -0.25 + 0.02 * std::abs(i - 2),
+            r * (i == 2 ? 1.2 : 1.0), r * (i == 2 ? 1.2 : 1.0), 0.0);
+  }
+}
+
 struct Tissue {
   float rgb[3];
   float texture;  // relative amplitude of the texture
@@ -104,6 +183,12 @@ struct Accum {
         rgb[i] += c * (base[i] * k + hue[i] - rgb[i]);
     }
     if (want_ct) hu += c * (t.hu + t.hu_texture * n - hu);
+  }
+  // Lays `inner` (a part's tissues) over this with coverage c.
+  void over(const Accum& inner, float c) {
+    for (int i = 0; i < 3; ++i)
+      rgb[i] += c * (inner.rgb[i] - rgb[i]);
+    hu += c * (inner.hu - hu);
   }
 };
 
@@ -228,10 +313,15 @@ Model::Model(int width, int height, int slices, std::uint64_t seed, const Anatom
 }
 
 double Model::body_max_a(const Anatomy& anatomy) {
+  // The torso with an arm at the largest gap (40 px at 1216 px height: 0.066) on each side.
+  if (anatomy.limbs)
+    return (kBodyA * kMaleTorso * 1.05 * (1 + kLobe3 + kLobe2) + 0.075 + 2 * 0.15) *
+           anatomy.body_scale;
   return kBodyA * 1.05 * (1 + kLobe3 + kLobe2) * anatomy.body_scale +
          0.5 * std::fabs(anatomy.shift_x);
 }
 double Model::body_max_b(const Anatomy& anatomy) {
+  if (anatomy.limbs) return kMaleTableTop * anatomy.body_scale + 0.05;
   return kBodyB * 1.04 * (1 + kLobe3 + kLobe2) * anatomy.body_scale +
          0.5 * std::fabs(anatomy.shift_y);
 }
@@ -248,7 +338,9 @@ SliceParams Model::slice(int k) const {
   const double t = slices_ > 1 ? std::min(1.0, double(k) / double(span)) : 0.0;
   s.t = t;
   // Smooth changes with z (the same for every seed: the seed moves the texture and the drift).
-  const double size = anatomy_.body_scale * (anatomy_.taper ? taper(t) : 1.0);
+  const double size = anatomy_.body_scale * (anatomy_.limbs   ? male_torso(t)
+                                             : anatomy_.taper ? taper(t)
+                                                              : 1.0);
   s.a = size * kBodyA * (1 + 0.05 * std::sin(2 * kPi * (0.7 * t + 0.1)));
   s.b = size * kBodyB * (1 + 0.04 * std::sin(2 * kPi * (0.5 * t + 0.3)));
   s.x0 = anatomy_.shift_x * (t - 0.5);
@@ -265,6 +357,10 @@ SliceParams Model::slice(int k) const {
   // by tens of degrees along a block either). Lobe phases and rib angles are therefore fixed.
   const double lobe3 = 0.6, lobe2 = 2.0;
   s.lobes = {std::cos(lobe3), std::sin(lobe3), std::cos(lobe2), std::sin(lobe2)};
+  if (anatomy_.limbs) {
+    s.table_top = kMaleTableTop * anatomy_.body_scale;
+    lay_out_limbs(s, t, 1.0 / half_, height_ / 1216.0);
+  }
   s.fat_x = 0.07 + 0.015 * std::sin(2 * kPi * t);
   s.fat_y = 0.09 + 0.015 * std::cos(2 * kPi * t);
   s.lung = 1 - 0.55 * smoothstep(0.35, 1.0, t);
@@ -324,7 +420,16 @@ void Model::eval(const SliceParams& s, double x, double y, double edge_px, bool 
   const double body = lobed_sdf(X, Y, s.a, s.b, s.lobes.data());
   const double notch = ellipse_sdf(Xr, Yr, -0.45, -0.50, 0.065, 0.17 * s.notch, w);
   const double eff = std::max(body, -notch);  // body minus the gel-filled notch
-  out.body = eff < 0;
+  // Anatomy::limbs: the nearest limb (arm, leg, foot, toe) and the outline of all parts.
+  double limb = kFar;
+  int nearest = -1;
+  for (int i = 0; i < s.limb_count; ++i) {
+    const Limb& l = s.limbs[std::size_t(i)];
+    const double d = ellipse_sdf(X, Y, l.x, l.y, l.a, l.b, w);
+    if (d < limb) limb = d, nearest = i;
+  }
+  const double outline = std::min(eff, limb);
+  out.body = outline < 0;
 
   // Outside: gel (RGB) with the fiducial tubes and tissue showing through near the edge;
   // air (CT) with the holder / table.
@@ -334,8 +439,8 @@ void Model::eval(const SliceParams& s, double x, double y, double edge_px, bool 
     const float k = 1.f + gel.texture * n;
     for (int i = 0; i < 3; ++i)
       acc.rgb[i] = gel.rgb[i] * k;
-    if (eff > 0) {
-      const float through = 0.35f * static_cast<float>(std::exp(-eff / 0.04));
+    if (outline > 0) {
+      const float through = 0.35f * static_cast<float>(std::exp(-outline / 0.04));
       for (int i = 0; i < 3; ++i)
         acc.rgb[i] += through * (0.8f * kTissues[kSkin].rgb[i] - acc.rgb[i]);
     }
@@ -347,7 +452,12 @@ void Model::eval(const SliceParams& s, double x, double y, double edge_px, bool 
       acc.mix(tube, c, n, 0.f, true, false);
     }
   }
-  if (want_ct) {
+  if (want_ct && anatomy_.limbs) {
+    // The table: a bar table_px thick under the body, across the whole field of view.
+    const double top = s.table_top, thick = anatomy_.table_px / half_;
+    const double table = std::max(top - Yf, Yf - (top + thick));
+    acc.hu = -1000.f + cover(table, w) * (kHolderHu + 1000.f);
+  } else if (want_ct) {
     const double ga = body_max_a(anatomy_) + 0.10, gb = body_max_b(anatomy_) + 0.10;
     const double inner = ellipse_sdf(Xf, Yf, 0, 0, ga, gb, 1e9);
     const double outer = ellipse_sdf(Xf, Yf, 0, 0, ga + 0.08, gb + 0.08, 1e9);
@@ -356,7 +466,38 @@ void Model::eval(const SliceParams& s, double x, double y, double edge_px, bool 
   }
 
   std::uint16_t label = 0;
-  if (eff < w) {  // anywhere near or inside the body
+  if (nearest >= 0 && limb < w && limb < eff) {
+    // A limb: skin, fat, muscle and its bone, nested as in the torso.
+    const Limb& l = s.limbs[std::size_t(nearest)];
+    auto resolved = [&](double a, double b) { return a * half_ >= 1.0 && b * half_ >= 1.0; };
+    Accum t = acc;
+    t.rgb[0] = t.rgb[1] = t.rgb[2] = 0;
+    t.hu = 0;
+    t.mix(kTissues[kSkin], 1.f, n, m, want_rgb, want_ct);
+    label = kSkin;
+    const double skin = 0.018, fat_t = 0.18 * std::min(l.a, l.b);
+    if (resolved(l.a - skin, l.b - skin)) {
+      const double fat = ellipse_sdf(X, Y, l.x, l.y, l.a - skin, l.b - skin, w);
+      if (fat < w) {
+        t.mix(kTissues[kFat], cover(fat, w), n, m, want_rgb, want_ct);
+        if (fat < 0) label = kFat;
+        const double ma = l.a - skin - fat_t, mb = l.b - skin - fat_t;
+        const double mus = resolved(ma, mb) ? ellipse_sdf(X, Y, l.x, l.y, ma, mb, w) : kFar;
+        if (mus < w) {
+          t.mix(kTissues[kMuscle], cover(mus, w), n, m, want_rgb, want_ct);
+          if (mus < 0) label = kMuscle;
+          const double r = l.bone * std::min(l.a, l.b);
+          const double bone =
+              l.bone > 0 && resolved(r, r) ? ellipse_sdf(X, Y, l.x, l.y, r, r, w) : kFar;
+          if (bone < w) {
+            t.mix(kTissues[kBone], cover(bone, w), n, m, want_rgb, want_ct);
+            if (bone < 0) label = kBone;
+          }
+        }
+      }
+    }
+    acc.over(t, cover(limb, w));
+  } else if (eff < w) {  // anywhere near or inside the body
     Accum t = acc;
     t.rgb[0] = t.rgb[1] = t.rgb[2] = 0;
     t.hu = 0;
@@ -419,10 +560,7 @@ void Model::eval(const SliceParams& s, double x, double y, double edge_px, bool 
         }
       }
     }
-    const float c = cover(eff, w);
-    for (int i = 0; i < 3; ++i)
-      acc.rgb[i] += c * (t.rgb[i] - acc.rgb[i]);
-    acc.hu += c * (t.hu - acc.hu);
+    acc.over(t, cover(eff, w));
   }
   out.label = out.body ? label : 0;
   for (int i = 0; i < 3; ++i)

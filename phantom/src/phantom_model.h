@@ -100,7 +100,24 @@ struct Anatomy {
   double shift_x = 0, shift_y = 0;  // body centre moves steadily by this over the stack
                                     // (normalised units, from −shift/2 to +shift/2)
   bool taper = false;  // body size ∝ sin(π t)^0.3: nothing at both ends of the stack
+  // A whole body from head to toes (the `male` presets; t = k / (N − 1)): the head tapering
+  // from nothing, the torso with an arm beside it on each side from the shoulders to the hands
+  // (gaps from 2 to 40 output px at 1216 px frame height, scaled with the frame, at least 2 px;
+  // the right arm rests on the table in part of the stack), the pelvis parting into two legs,
+  // two feet, then five toes per foot tapering to nothing. The CT shows a table (a bar
+  // `table_px` output px thick, under the body, touching the torso and the right arm in some
+  // slices) instead of the classic holder ring.
+  bool limbs = false;
+  double table_px = 0;  // table thickness, output pixels (limbs only)
 };
+
+// One limb cross-section of a slice (an arm, a hand, a leg, a foot, a toe): an ellipse in body
+// coordinates (normalised units), skin, fat, muscle and (bone > 0) a bone of `bone` × the smaller
+// semi-axis at its centre.
+struct Limb {
+  double x = 0, y = 0, a = 0, b = 0, bone = 0;
+};
+inline constexpr int kMaxLimbs = 12;
 
 // Per-slice parameters of the model (shapes and texture at slice k).
 struct SliceParams {
@@ -113,8 +130,11 @@ struct SliceParams {
   double fat_x = 0, fat_y = 0;    // fat thickness
   double lung = 0, heart = 0, liver = 0, kidney = 0, rib = 0, notch = 0;  // sizes 0..1
   std::array<std::array<double, 2>, 6> ribs{};  // rib centres (body-relative units)
-  std::array<NoiseLayer, 4> texture;            // octaves of the tissue texture
-  NoiseLayer marbling;                          // slow second field (fat marbling, hue)
+  std::array<Limb, kMaxLimbs> limbs{};          // Anatomy::limbs: the parts besides the torso
+  int limb_count = 0;
+  double table_top = 0;               // Anatomy::limbs: the table's top edge (frame units, y down)
+  std::array<NoiseLayer, 4> texture;  // octaves of the tissue texture
+  NoiseLayer marbling;                // slow second field (fat marbling, hue)
 };
 
 // What the model gives at one point.

@@ -24,7 +24,8 @@ int main(int argc, char** argv) {
         "The same options give a byte-identical folder.");
     const auto out = args.option("--out", "DIR", "output folder (created if missing)");
     const auto preset = args.option(
-        "--preset", "NAME", "tiny | small | medium | vhp | anatomy | anatomy-vhp (default small)");
+        "--preset", "NAME",
+        "tiny | small | medium | vhp | anatomy | anatomy-vhp | male | male-small (default small)");
     const auto from_ct = args.option("--from-ct", "CT", "synthesise from this real CT volume");
     const auto first =
         args.option_int("--first", "K", "--from-ct: first CT slice (default: centred)");

@@ -88,7 +88,7 @@ int main(int argc, char** argv) {
             out[std::size_t(i)] = vp::open_disc(
                 vp::non_gel(rgb, cv::Vec3f(40, 70, 160), options.gel_distance), options.opening_px);
           } else {
-            out[std::size_t(i)] = vp::compute_mask(rgb, &ct, out_to_ct, mo).mask;
+            out[std::size_t(i)] = vp::compute_mask(rgb, &ct, out_to_ct, mo, 0.33 * 0.33).mask;
           }
         });
         all_times[std::size_t(method)].push_back(

@@ -34,7 +34,9 @@ TEST(HeadCtMask, CtBodyMaskExcludesHeadHolderArc) {
   for (int z = 0; z < 106; ++z) {
     cv::Mat hu32;
     hu[z].convertTo(hu32, CV_32F);
-    cv::Mat mask = pipeline::ct_body_mask(hu32, config.mask.hu_threshold);
+    const double ct_mm2 = config.ct->pixel_spacing_mm[0] * config.ct->pixel_spacing_mm[1];
+    cv::Mat mask =
+        pipeline::ct_body_mask(hu32, config.mask.hu_threshold, config.mask.min_part_mm2 / ct_mm2);
     cv::Mat arc = arc_pixels(hu[z]);
     // The arc is there (>= 94 px per slice, HeadCt.HeadHolderArcIsWhereDocumented) ...
     ASSERT_GT(cv::countNonZero(arc), 80) << "slice " << z;
@@ -52,7 +54,8 @@ TEST(VisibleWomanMask, GelRemovedByColourRefinement) {
   ASSERT_TRUE(config.mask.refine_gel);
   auto files = pipeline::list_slices(config.rgb);
   cv::Mat rgb = pipeline::read_slice(files.at(0).path);
-  auto result = pipeline::compute_mask(rgb, nullptr, cv::Matx23d(1, 0, 0, 0, 1, 0), config.mask);
+  auto result = pipeline::compute_mask(rgb, nullptr, cv::Matx23d(1, 0, 0, 0, 1, 0), config.mask,
+                                       config.spacing_mm[0] * config.spacing_mm[1]);
   ASSERT_EQ(result.mask.size(), rgb.size());
   const cv::Mat& m = result.mask;
   std::printf("visible-woman mask: coverage %.4f, gel (%.1f, %.1f, %.1f)\n", result.coverage,

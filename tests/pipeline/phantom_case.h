@@ -6,8 +6,12 @@
 #include <string>
 
 #include "vispack/phantom/phantom.h"
+#include "vispack/phantom/score.h"
 #include "vispack/pipeline/core/config.h"
 #include "vispack/pipeline/core/stage_run.h"
+#include "vispack/pipeline/labels/labels_stage.h"
+#include "vispack/pipeline/mask/mask_stage.h"
+#include "vispack/pipeline/register/register_stage.h"
 
 namespace vispack::test {
 
@@ -29,6 +33,17 @@ inline pipeline::StageOptions quiet_stage_options() {
   pipeline::StageOptions options;
   options.quiet = true;
   return options;
+}
+
+// Register, mask and labels on `config` (a phantom case written into `dir`), quietly, scored
+// against the phantom's truth.
+inline phantom::Score run_stages_and_score(const std::filesystem::path& dir,
+                                           const pipeline::Config& config) {
+  const pipeline::StageOptions so = quiet_stage_options();
+  pipeline::run_register_stage(config, so);
+  pipeline::run_mask_stage(config, so);
+  pipeline::run_labels_stage(config, so);
+  return phantom::score_work((dir / "truth").string(), config.work_dir);
 }
 
 }  // namespace vispack::test

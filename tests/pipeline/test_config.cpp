@@ -61,7 +61,7 @@ json full_config() {
                   "jump_px": 6.0, "anchor": "ct", "overrides": "data/overrides.json",
                   "output_frame": { "rotation_deg": 1.5, "dx_px": -2, "dy_px": 3 } },
     "mask": { "hu_threshold": -400, "opening_px": 1, "refine_gel": true, "gel_colour": [30, 60, 200],
-              "gel_distance": 40 },
+              "gel_distance": 40, "min_part_mm2": 5 },
     "pack": { "brick_edge": 64, "zstd_level": 3, "downsample": 1, "threads": 0,
               "keep_outside_body": "ct", "crop_margin_px": 8 },
     "work": { "write_registered": true, "write_ct": false, "overlay_max_px": 512 },
@@ -240,6 +240,7 @@ TEST(Config, DefaultsForAMinimalConfig) {
   EXPECT_FALSE(c.seg.has_value());
   EXPECT_EQ(c.registration.method, "phase+ecc");
   EXPECT_DOUBLE_EQ(c.mask.hu_threshold, -400.0);
+  EXPECT_DOUBLE_EQ(c.mask.min_part_mm2, 5.0);
   EXPECT_EQ(c.pack.zstd_level, 3);
   // Issue 12: by default colour and CT outside the body are cleared and nothing is cropped.
   EXPECT_FALSE(c.pack.keep_colour_outside_body);
@@ -297,6 +298,8 @@ TEST(Config, ErrorsNameTheKey) {
       {[](json& j) { j.erase("ct"); }, "register.anchor: \"ct\" needs a \"ct\" section"},
       {[](json& j) { j["register"]["overrides"] = "none.json"; }, "register.overrides: file"},
       {[](json& j) { j["mask"]["opening_px"] = 1.5; }, "mask.opening_px: must be an integer"},
+      {[](json& j) { j["mask"]["min_part_mm2"] = -1; }, "mask.min_part_mm2: -1 is out of range"},
+      {[](json& j) { j["mask"]["min_part_mm2"] = "big"; }, "mask.min_part_mm2: must be a number"},
       {[](json& j) {
          j["mask"]["gel_colour"] = {1, 2, 300};
        },

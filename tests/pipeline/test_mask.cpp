@@ -46,7 +46,7 @@ TEST(Mask, CtMaskDropsHeadHolderAndFillsLungs) {
   cv::circle(ct, {54, 60}, 10, cv::Scalar(-850), -1);                   // lung (air, enclosed)
   cv::ellipse(ct, {64, 60}, {46, 46}, 0, 30, 150, cv::Scalar(200), 3);  // holder arc below
   cv::line(ct, {64, 100}, {64, 106}, cv::Scalar(200), 2);               // bridge
-  cv::Mat body = vp::ct_body_mask(ct, -400);
+  cv::Mat body = vp::ct_body_mask(ct, -400, 5.0);
   cv::Mat expect(128, 128, CV_8U, cv::Scalar(0));
   cv::circle(expect, {64, 60}, 40, cv::Scalar(255), -1);
   // The lung is inside the mask; the arc is outside.
@@ -56,6 +56,63 @@ TEST(Mask, CtMaskDropsHeadHolderAndFillsLungs) {
   // Everything but the bridge root agrees: IoU with the disc > 0.98 (the bridge keeps at most
   // a few pixels within the regrowth radius kCtDetachPx + 1).
   EXPECT_GT(iou(body, expect), 0.98);
+}
+
+// Every part that is body stays (issue #30): a torso with an arm 3 px from it and one 9 px from
+// it, a finger-sized part (radius 4 CT px) and two legs-sized discs of nearly the same size all
+// count; a table 3 px thick touching the lower arm, a holder bar 7 px thick (thick enough to
+// survive the opening) and a 2×2 speck do not. With the largest component alone (the rule
+// before issue #30) the arms, the finger and the second leg are lost.
+TEST(Mask, CtMaskKeepsEveryBodyPartAndDropsHolders) {
+  cv::Mat ct(160, 240, CV_32F, cv::Scalar(-1000));
+  cv::Mat expect(ct.size(), CV_8U, cv::Scalar(0));
+  auto tissue = [&](auto draw) {
+    draw(ct, cv::Scalar(40));
+    draw(expect, cv::Scalar(255));
+  };
+  tissue([](cv::Mat& m, cv::Scalar v) { cv::ellipse(m, {100, 60}, {50, 32}, 0, 0, 360, v, -1); });
+  tissue([](cv::Mat& m, cv::Scalar v) { cv::circle(m, {165, 60}, 12, v, -1); });  // gap 3
+  tissue([](cv::Mat& m, cv::Scalar v) { cv::circle(m, {30, 75}, 12, v, -1); });   // gap 9
+  tissue([](cv::Mat& m, cv::Scalar v) { cv::circle(m, {200, 30}, 4, v, -1); });   // finger
+  tissue([](cv::Mat& m, cv::Scalar v) { cv::circle(m, {80, 130}, 14, v, -1); });  // legs
+  tissue([](cv::Mat& m, cv::Scalar v) { cv::circle(m, {120, 130}, 15, v, -1); });
+  cv::rectangle(ct, cv::Rect(2, 87, 56, 3), cv::Scalar(200), -1);     // table under the arm
+  cv::rectangle(ct, cv::Rect(150, 140, 85, 7), cv::Scalar(300), -1);  // holder bar, apart
+  cv::rectangle(ct, cv::Rect(220, 100, 2, 2), cv::Scalar(40), -1);    // speck
+  vp::PartCounts counts;
+  const cv::Mat body = vp::ct_body_mask(ct, -400, 10.0, &counts);
+  EXPECT_EQ(counts.kept, 6);
+  EXPECT_GE(counts.removed, 1);  // the bar (the speck and the table go with the opening)
+  for (cv::Point p : {cv::Point(100, 60), cv::Point(165, 60), cv::Point(30, 75), cv::Point(200, 30),
+                      cv::Point(80, 130), cv::Point(120, 130)})
+    EXPECT_EQ(body.at<std::uint8_t>(p), 255) << p;
+  EXPECT_EQ(cv::countNonZero(body(cv::Rect(150, 140, 85, 7))), 0) << "holder bar in the mask";
+  EXPECT_EQ(cv::countNonZero(body(cv::Rect(220, 100, 2, 2))), 0) << "speck in the mask";
+  // The table: none of it away from the arm; at the contact only the fillet where the opening's
+  // disc still fits (measured 22 px: 3 rows under the arm's lowest 9 columns). The table's whole
+  // contact strip under the arm (25 columns) is 75 px.
+  EXPECT_EQ(cv::countNonZero(body(cv::Rect(48, 87, 10, 3))), 0) << "table in the mask";
+  EXPECT_LE(cv::countNonZero(body & ~expect), 30);
+  EXPECT_GT(iou(body, expect), 0.99);
+}
+
+// Colour-only: two legs of nearly equal size are both body; a green fiducial tube the size of a
+// leg's bone is not tissue-coloured; a blue-grey blob (gel seen through ice) neither.
+TEST(Mask, ColourMaskKeepsBothLegs) {
+  const cv::Vec3b gel(40, 70, 160);
+  cv::Mat rgb(120, 200, CV_8UC3, cv::Scalar(gel[0], gel[1], gel[2]));
+  cv::circle(rgb, {60, 60}, 30, cv::Scalar(180, 90, 80), -1);
+  cv::circle(rgb, {140, 60}, 29, cv::Scalar(185, 95, 80), -1);
+  cv::circle(rgb, {100, 15}, 7, cv::Scalar(40, 200, 60), -1);    // fiducial tube
+  cv::circle(rgb, {100, 105}, 7, cv::Scalar(90, 110, 180), -1);  // blue-grey
+  vp::PartCounts counts;
+  const cv::Mat m = vp::colour_body_mask(rgb, cv::Vec3f(40, 70, 160), 40, 1, 5.0, &counts);
+  EXPECT_EQ(counts.kept, 2);
+  EXPECT_EQ(counts.removed, 2);
+  EXPECT_EQ(m.at<std::uint8_t>(60, 60), 255);
+  EXPECT_EQ(m.at<std::uint8_t>(60, 140), 255);
+  EXPECT_EQ(m.at<std::uint8_t>(15, 100), 0);
+  EXPECT_EQ(m.at<std::uint8_t>(105, 100), 0);
 }
 
 TEST(Mask, GelRefinementRemovesEdgeGelAndNotchKeepsInnerGel) {
@@ -78,9 +135,9 @@ TEST(Mask, GelRefinementRemovesEdgeGelAndNotchKeepsInnerGel) {
   cv::Vec3f est = vp::estimate_gel_colour(rgb);
   EXPECT_NEAR(est[0], 40, 0.5);
   EXPECT_NEAR(est[2], 160, 0.5);
-  // Colour-only mask: a green tube separate from the body is not the largest component.
+  // Colour-only mask: a green tube separate from the body is not tissue-coloured.
   cv::circle(rgb, {10, 10}, 5, cv::Scalar(40, 200, 60), -1);
-  cv::Mat colour = vp::colour_body_mask(rgb, est, 40, 1);
+  cv::Mat colour = vp::colour_body_mask(rgb, est, 40, 1, 5.0);
   EXPECT_EQ(colour.at<std::uint8_t>(10, 10), 0);
   EXPECT_EQ(colour.at<std::uint8_t>(60, 70), 255);  // filled
   EXPECT_EQ(colour.at<std::uint8_t>(60, 80), 255);
@@ -193,11 +250,7 @@ TEST(MaskCli, ExitCodes) {
 TEST(MaskStage, AnatomyPresetAgainstTruth) {
   TempDir dir("vispack-mask-anatomy");
   const vp::Config config = vispack::test::make_phantom_case(dir.path(), "anatomy", 3);
-  const vp::StageOptions so = vispack::test::quiet_stage_options();
-  vp::run_register_stage(config, so);
-  vp::run_mask_stage(config, so);
-  vp::run_labels_stage(config, so);
-  const vph::Score score = vph::score_work(dir / "truth", config.work_dir);
+  const vph::Score score = vispack::test::run_stages_and_score(dir.path(), config);
   ASSERT_TRUE(score.has_mask);
   std::printf("anatomy: mask stack IoU %.4f, worst %.4f (slice %d); labels %.4f\n",
               score.mask.stack_iou, score.mask.min_body_iou, score.mask.min_body_slice,

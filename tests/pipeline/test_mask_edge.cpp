@@ -278,7 +278,7 @@ std::vector<Row> run_stack(const Head& head, const std::vector<double>& areas, c
   std::uint32_t seed = 100;
   for (double area : areas) {
     const Rendered r = render(head, head.z_for_area(area), size, model, seed++);
-    const cv::Mat m = vp::compute_mask(r.rgb, &r.ct, r.out_to_ct, options).mask;
+    const cv::Mat m = vp::compute_mask(r.rgb, &r.ct, r.out_to_ct, options, 0.33 * 0.33).mask;
     rows.push_back({cv::countNonZero(r.truth), iou(m, r.truth), edge_offset(m, r.truth)});
     std::printf("| %d | %.4f | %+.3f |\n", rows.back().area, rows.back().iou, rows.back().offset);
     inter += cv::countNonZero(m & r.truth);

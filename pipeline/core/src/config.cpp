@@ -237,7 +237,8 @@ const std::vector<std::pair<std::string, std::vector<std::string>>>& known_keys(
        {"enabled", "method", "ecc_scale", "ecc_iterations", "jump_px", "output_frame", "anchor",
         "overrides"}},
       {"register.output_frame", {"rotation_deg", "dx_px", "dy_px"}},
-      {"mask", {"hu_threshold", "opening_px", "refine_gel", "gel_colour", "gel_distance"}},
+      {"mask",
+       {"hu_threshold", "opening_px", "refine_gel", "gel_colour", "gel_distance", "min_part_mm2"}},
       {"pack",
        {"brick_edge", "zstd_level", "downsample", "threads", "keep_outside_body",
         "crop_margin_px"}},
@@ -418,6 +419,7 @@ Config load_config(const std::string& path) {
       s.find("gel_colour");
     }
     m.gel_distance = s.number("gel_distance", 40.0, 0.0, 442.0);
+    m.min_part_mm2 = s.number("min_part_mm2", 5.0, 0.0, 1e6);
     s.finish();
   }
   {
@@ -556,7 +558,8 @@ json config_to_json(const Config& config, const std::string& base_dir) {
   json mask = {{"hu_threshold", m.hu_threshold},
                {"opening_px", m.opening_px},
                {"refine_gel", m.refine_gel},
-               {"gel_distance", m.gel_distance}};
+               {"gel_distance", m.gel_distance},
+               {"min_part_mm2", m.min_part_mm2}};
   if (m.gel_colour) mask["gel_colour"] = *m.gel_colour;
   out["mask"] = mask;
   out["pack"] = {{"brick_edge", config.pack.brick_edge},

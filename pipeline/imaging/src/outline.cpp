@@ -9,12 +9,22 @@
 #include <opencv2/imgproc.hpp>
 
 #include "vispack/common/error.h"
+#include "vispack/common/math_constants.h"
 
 namespace vispack::pipeline {
 namespace {
 
 cv::Mat disc(int radius) {
   return cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * radius + 1, 2 * radius + 1));
+}
+
+// Distance (pixels) of each mask pixel to the nearest pixel outside it, where everything beyond
+// the image counts as outside (cv::distanceTransform alone ignores the image border).
+cv::Mat inside_distance(const cv::Mat& mask) {
+  cv::Mat padded, dist;
+  cv::copyMakeBorder(mask, padded, 1, 1, 1, 1, cv::BORDER_CONSTANT, cv::Scalar(0));
+  cv::distanceTransform(padded, dist, cv::DIST_L2, cv::DIST_MASK_5);
+  return dist(cv::Rect(1, 1, mask.cols, mask.rows));
 }
 
 }  // namespace
@@ -32,16 +42,69 @@ void require_rgb_slice(const cv::Mat& rgb, const char* what) {
     throw InputError(cat(what, ": expected an 8-bit RGB slice, got type ", rgb.type()));
 }
 
-cv::Mat largest_component(const cv::Mat& mask) {
-  cv::Mat labels, stats, centroids;
-  const int n = cv::connectedComponentsWithStats(mask, labels, stats, centroids, 8, CV_32S);
+cv::Mat body_parts(const cv::Mat& mask, const PartRule& rule, PartCounts* counts,
+                   const cv::Mat& rgb) {
+  if (!rgb.empty()) {
+    require_rgb_slice(rgb, "body_parts");
+    if (rgb.size() != mask.size()) throw Error("body_parts: mask and slice differ in size");
+  }
+  if (counts) *counts = {};
   cv::Mat out = cv::Mat::zeros(mask.size(), CV_8UC1);
+  // Only the parts' bounding box is examined.
+  const cv::Rect box = cv::boundingRect(mask);
+  if (box.empty()) return out;
+  cv::Mat labels, stats, centroids;
+  const cv::Mat m = mask(box) > 0;
+  const int n = cv::connectedComponentsWithStats(m, labels, stats, centroids, 8, CV_32S);
   if (n <= 1) return out;
-  int best = 1;
-  for (int i = 2; i < n; ++i)
-    if (stats.at<int>(i, cv::CC_STAT_AREA) > stats.at<int>(best, cv::CC_STAT_AREA)) best = i;
-  if (n == 2) return mask > 0;
-  return labels == best;
+  std::vector<double> inscribed(std::size_t(n), 0.0);
+  if (rule.max_elongation > 0) {
+    const cv::Mat dist = inside_distance(m);
+    for (int y = 0; y < m.rows; ++y) {
+      const int* l = labels.ptr<int>(y);
+      const float* d = dist.ptr<float>(y);
+      for (int x = 0; x < m.cols; ++x)
+        if (l[x] > 0)
+          inscribed[std::size_t(l[x])] = std::max(inscribed[std::size_t(l[x])], double(d[x]));
+    }
+  }
+  std::vector<cv::Vec3d> colour(std::size_t(rgb.empty() ? 0 : n), cv::Vec3d(0, 0, 0));
+  if (!rgb.empty()) {
+    const cv::Mat c = rgb(box);
+    for (int y = 0; y < m.rows; ++y) {
+      const int* l = labels.ptr<int>(y);
+      const cv::Vec3b* p = c.ptr<cv::Vec3b>(y);
+      for (int x = 0; x < m.cols; ++x)
+        if (l[x] > 0) colour[std::size_t(l[x])] += cv::Vec3d(p[x][0], p[x][1], p[x][2]);
+    }
+  }
+  std::vector<std::uint8_t> keep(std::size_t(n), 0);
+  int kept = 0;
+  for (int i = 1; i < n; ++i) {
+    const double area = stats.at<int>(i, cv::CC_STAT_AREA);
+    bool body = area >= rule.min_area_px;
+    if (body && rule.max_elongation > 0) {
+      // The distance transform counts from the pixel centre to the nearest outside centre: a
+      // disc of radius R reads about R + 0.5.
+      const double r = std::max(0.5, inscribed[std::size_t(i)]);
+      body = area / (kPi * r * r) <= rule.max_elongation;
+    }
+    if (body && !rgb.empty()) {
+      const cv::Vec3d mean = colour[std::size_t(i)] / area;
+      body = mean[1] <= mean[0] + kTissueColourSlack && mean[2] <= mean[0] + kTissueColourSlack;
+    }
+    keep[std::size_t(i)] = body ? 255 : 0;
+    kept += body ? 1 : 0;
+  }
+  if (counts) *counts = {kept, n - 1 - kept};
+  cv::Mat o = out(box);
+  for (int y = 0; y < m.rows; ++y) {
+    const int* l = labels.ptr<int>(y);
+    std::uint8_t* po = o.ptr<std::uint8_t>(y);
+    for (int x = 0; x < m.cols; ++x)
+      po[x] = keep[std::size_t(l[x])];
+  }
+  return out;
 }
 
 cv::Mat fill_holes(const cv::Mat& mask) {
@@ -60,28 +123,138 @@ cv::Mat open_disc(const cv::Mat& mask, int radius) {
   return out;
 }
 
-cv::Mat ct_body_mask(const cv::Mat& ct_hu, double hu_threshold) {
+cv::Mat ct_body_mask(const cv::Mat& ct_hu, double hu_threshold, double min_part_px,
+                     PartCounts* counts) {
   cv::Mat hu = ct_hu_float(ct_hu);
   // Holes filled first: a cavity near the body's edge (a sinus, an airway) leaves only a thin
   // band of tissue between it and the outside, which the opening below would cut off with the
   // holder (at the ends of the stack, where the body is a few CT pixels across, half the body).
   cv::Mat raw = fill_holes(hu > hu_threshold);
-  // The opening cuts thin bridges (head-holder, table); the largest component is the body.
-  cv::Mat body = largest_component(open_disc(raw, kCtDetachPx));
+  // The opening cuts thin bridges (head-holder, table); every part that is body stays
+  // (outline.h: the part rule).
+  PartRule rule;
+  rule.min_area_px = min_part_px;
+  cv::Mat body = body_parts(open_disc(raw, kCtDetachPx), rule, counts);
   const cv::Rect bounds = cv::boundingRect(body);
   if (bounds.empty()) return body;
-  // Grow back what the opening shaved off the body's own edge, only within its radius + 1. All
-  // of it lies within the body's bounding box grown by that radius; one more pixel of background
-  // around it lets fill_holes work on the box alone (same result, a fraction of the pixels).
-  const int reach = kCtDetachPx + 1, m = reach + 1;
+  // Grow back what the opening shaved off the parts' own edge, only within its radius + 1, and
+  // none of a shaved-off piece that reaches beyond kHolderReachPx (a holder or table touching a
+  // part). All of it lies within the parts' bounding box grown by kHolderReachPx; one more pixel
+  // of background around it lets fill_holes work on the box alone.
+  const int reach = kCtDetachPx + 1, m = kHolderReachPx + 2;
   const cv::Rect box =
       cv::Rect(bounds.x - m, bounds.y - m, bounds.width + 2 * m, bounds.height + 2 * m) &
       cv::Rect(0, 0, body.cols, body.rows);
-  cv::Mat grown;
-  cv::dilate(body(box), grown,
-             cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(2 * reach + 1, 2 * reach + 1)));
+  cv::Mat kept = body(box);
+  // The shaved-off set: threshold pixels outside the kept parts, in pieces (8-connected).
+  cv::Mat labels, stats, centroids;
+  cv::connectedComponentsWithStats(raw(box) & ~kept, labels, stats, centroids, 8, CV_32S);
+  // A fragment of a holder: the opening leaves spots of a band slightly thicker than its disc
+  // as small parts. Such a part is thin (its largest inscribed radius at most kThinPartPx) and
+  // touches a shaved-off piece larger than itself (the band it sat on); a small part of its own
+  // (a toe, a finger tip) loses only a rim thinner than itself.
+  {
+    constexpr float kThinPartPx = kCtDetachPx + 1.5f;
+    cv::Mat parts, part_stats, part_centroids;
+    const int np =
+        cv::connectedComponentsWithStats(kept, parts, part_stats, part_centroids, 8, CV_32S);
+    const cv::Mat inside = inside_distance(kept);
+    std::vector<float> radius(std::size_t(np), 0.f);
+    for (int y = 0; y < box.height; ++y) {
+      const int* l = parts.ptr<int>(y);
+      const float* d = inside.ptr<float>(y);
+      for (int x = 0; x < box.width; ++x)
+        radius[std::size_t(l[x])] = std::max(radius[std::size_t(l[x])], d[x]);
+    }
+    std::vector<std::uint8_t> fragment(std::size_t(np), 0);
+    bool any = false;
+    for (int y = 0; y < box.height; ++y) {
+      const int* l = parts.ptr<int>(y);
+      for (int x = 0; x < box.width; ++x) {
+        const int part = l[x];
+        if (part == 0 || radius[std::size_t(part)] > kThinPartPx || fragment[std::size_t(part)])
+          continue;
+        for (int dy = -1; dy <= 1; ++dy)
+          for (int dx = -1; dx <= 1; ++dx) {
+            const int yy = y + dy, xx = x + dx;
+            if (yy < 0 || xx < 0 || yy >= box.height || xx >= box.width) continue;
+            const int piece = labels.at<int>(yy, xx);
+            if (piece > 0 &&
+                stats.at<int>(piece, cv::CC_STAT_AREA) > part_stats.at<int>(part, cv::CC_STAT_AREA))
+              fragment[std::size_t(part)] = 1, any = true;
+          }
+      }
+    }
+    if (any) {
+      kept = kept.clone();
+      for (int y = 0; y < box.height; ++y) {
+        const int* l = parts.ptr<int>(y);
+        std::uint8_t* k = kept.ptr<std::uint8_t>(y);
+        for (int x = 0; x < box.width; ++x)
+          if (fragment[std::size_t(l[x])]) k[x] = 0;
+      }
+      for (int i = 1; i < np; ++i)
+        if (fragment[std::size_t(i)] && counts) --counts->kept, ++counts->removed;
+      cv::connectedComponentsWithStats(raw(box) & ~kept, labels, stats, centroids, 8, CV_32S);
+    }
+  }
+  // Distance to the nearest kept pixel: far within kHolderReachPx, touching within one pixel
+  // (8-neighbours); the regrowth itself within a disc of `reach` (the box's edge lies beyond
+  // kHolderReachPx, so a piece the box cuts reaches beyond too). A piece comes back when it
+  // touches a kept part and lies wholly within kHolderReachPx of one.
+  cv::Mat near;
+  std::vector<std::uint8_t> touches, beyond;
+  auto classify = [&] {
+    cv::Mat distance;
+    cv::dilate(kept, near, disc(reach));
+    cv::distanceTransform(~kept, distance, cv::DIST_L2, cv::DIST_MASK_5);
+    const cv::Mat far = distance <= float(kHolderReachPx), touch = distance < 1.5f;
+    touches.assign(std::size_t(stats.rows), 0);
+    beyond.assign(std::size_t(stats.rows), 0);
+    for (int y = 0; y < box.height; ++y) {
+      const int* l = labels.ptr<int>(y);
+      const std::uint8_t* t = touch.ptr<std::uint8_t>(y);
+      const std::uint8_t* f = far.ptr<std::uint8_t>(y);
+      for (int x = 0; x < box.width; ++x) {
+        if (l[x] == 0) continue;
+        if (t[x]) touches[std::size_t(l[x])] = 1;
+        if (!f[x]) beyond[std::size_t(l[x])] = 1;
+      }
+    }
+  };
+  classify();
+  {
+    // Where a holder or table touches a part, the opening's disc still fits into the corner
+    // between them and keeps a fillet of the holder in the part (an arm resting on the table:
+    // its lower edge a CT pixel too low, which turned the CT anchor by 0.25° on the male
+    // phantom). The holder, one pixel wider, is taken out of the threshold and the opening
+    // repeated: the fillet goes, the part's own edge stays.
+    cv::Mat holder = cv::Mat::zeros(kept.size(), CV_8UC1);
+    bool any = false;
+    for (int y = 0; y < box.height; ++y) {
+      const int* l = labels.ptr<int>(y);
+      std::uint8_t* o = holder.ptr<std::uint8_t>(y);
+      for (int x = 0; x < box.width; ++x)
+        if (l[x] > 0 && touches[std::size_t(l[x])] && beyond[std::size_t(l[x])])
+          o[x] = 255, any = true;
+    }
+    if (any) {
+      cv::dilate(holder, holder, cv::Mat());
+      kept = kept & open_disc(raw(box) & ~holder, kCtDetachPx);
+      cv::connectedComponentsWithStats(raw(box) & ~kept, labels, stats, centroids, 8, CV_32S);
+      classify();
+    }
+  }
+  cv::Mat grown = kept.clone();
+  for (int y = 0; y < box.height; ++y) {
+    const int* l = labels.ptr<int>(y);
+    const std::uint8_t* nr = near.ptr<std::uint8_t>(y);
+    std::uint8_t* g = grown.ptr<std::uint8_t>(y);
+    for (int x = 0; x < box.width; ++x)
+      if (l[x] > 0 && nr[x] && touches[std::size_t(l[x])] && !beyond[std::size_t(l[x])]) g[x] = 255;
+  }
   cv::Mat out = cv::Mat::zeros(body.size(), CV_8UC1);
-  fill_holes(largest_component(raw(box) & grown)).copyTo(out(box));
+  fill_holes(grown).copyTo(out(box));
   return out;
 }
 
@@ -127,9 +300,13 @@ cv::Mat non_gel(const cv::Mat& rgb, const cv::Vec3f& gel, double distance) {
   return out;
 }
 
-cv::Mat colour_body_mask(const cv::Mat& rgb, const cv::Vec3f& gel, double distance,
-                         int opening_px) {
-  return fill_holes(largest_component(open_disc(non_gel(rgb, gel, distance), opening_px)));
+cv::Mat colour_body_mask(const cv::Mat& rgb, const cv::Vec3f& gel, double distance, int opening_px,
+                         double min_part_px, PartCounts* counts) {
+  PartRule rule;
+  rule.min_area_px = min_part_px;
+  // Holes filled before the rule, which judges a part by its outline.
+  return body_parts(fill_holes(open_disc(non_gel(rgb, gel, distance), opening_px)), rule, counts,
+                    rgb);
 }
 
 }  // namespace vispack::pipeline

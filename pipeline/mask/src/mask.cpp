@@ -178,8 +178,10 @@ cv::Mat draw_mask_overlay(const cv::Mat& rgb, const cv::Mat& mask) {
 }
 
 MaskSlice compute_mask(const cv::Mat& rgb, const cv::Mat* ct_hu, const cv::Matx23d& out_to_ct,
-                       const MaskOptions& options) {
+                       const MaskOptions& options, double pixel_mm2) {
   require_rgb_slice(rgb, "compute_mask");
+  if (!(pixel_mm2 > 0.0)) throw Error(cat("compute_mask: pixel area ", pixel_mm2, " mm²"));
+  const double min_part_px = options.min_part_mm2 / pixel_mm2;  // output pixels
   MaskSlice result;
   result.gel = options.gel_colour
                    ? cv::Vec3f(float((*options.gel_colour)[0]), float((*options.gel_colour)[1]),
@@ -187,11 +189,15 @@ MaskSlice compute_mask(const cv::Mat& rgb, const cv::Mat* ct_hu, const cv::Matx2
                    : estimate_gel_colour(rgb);
   const cv::Size size = rgb.size();
   if (!ct_hu) {
-    result.mask = colour_body_mask(rgb, result.gel, options.gel_distance, options.opening_px);
+    result.mask = colour_body_mask(rgb, result.gel, options.gel_distance, options.opening_px,
+                                   min_part_px, &result.parts);
   } else {
     const cv::Mat hu = ct_hu_float(*ct_hu);
     const double level = mask_edge_level_hu(options.hu_threshold);
-    cv::Mat ct_mask = ct_body_mask(hu, level);
+    // CT pixels per output pixel (area): |det out_to_ct|.
+    const double ct_per_out =
+        std::abs(out_to_ct(0, 0) * out_to_ct(1, 1) - out_to_ct(0, 1) * out_to_ct(1, 0));
+    cv::Mat ct_mask = ct_body_mask(hu, level, min_part_px * ct_per_out, &result.parts);
     result.mask = cv::Mat::zeros(size, CV_8UC1);
     // Work inside the rectangle the CT body can reach (plus a frame of outside pixels).
     const int margin = options.opening_px + 4;
@@ -234,7 +240,11 @@ MaskSlice compute_mask(const cv::Mat& rgb, const cv::Mat* ct_hu, const cv::Matx2
           opened.copyTo(m(box));
         }
       } else {
-        m = fill_holes(largest_component(open_disc(carried, options.opening_px)));
+        // The CT mask's parts are decided (step 2): the opening may only shed debris.
+        PartRule rule;
+        rule.min_area_px = min_part_px;
+        rule.max_elongation = 0.0;
+        m = fill_holes(body_parts(open_disc(carried, options.opening_px), rule));
       }
       result.coverage = double(cv::countNonZero(m)) / double(size.area());
       m.copyTo(result.mask(roi));

@@ -48,6 +48,7 @@ MaskStageJob::MaskStageJob(const Config& config, const StackInputs& inputs,
            {"mask", "ct", "rgb", "work.write_ct", "work.overlay_max_px"},
            {transforms_path(config)}) {
   coverage_.assign(static_cast<std::size_t>(run_.range().size()), -1.0);
+  parts_.assign(coverage_.size(), PartCounts{});
 }
 
 std::string MaskStageJob::input_fingerprint(int k) const {
@@ -94,7 +95,8 @@ cv::Mat MaskStageJob::compute(int k, const cv::Mat& rgb, const CtSlice& ct, cv::
   // A black (lost) colour slice has no colour to refine with: its mask is the CT's alone.
   MaskOptions mask_options = config_.mask;
   if (inputs_.transforms.slices[std::size_t(k)].black) mask_options.refine_gel = false;
-  MaskSlice m = compute_mask(rgb, has_ct ? &ct_hu : nullptr, ct.out_to_ct, mask_options);
+  MaskSlice m = compute_mask(rgb, has_ct ? &ct_hu : nullptr, ct.out_to_ct, mask_options,
+                             config_.spacing_mm[0] * config_.spacing_mm[1]);
   compute_ns_ +=
       std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - t0)
           .count();
@@ -107,6 +109,7 @@ cv::Mat MaskStageJob::compute(int k, const cv::Mat& rgb, const CtSlice& ct, cv::
     if (ct16) *ct16 = resampled;
   }
   coverage_[std::size_t(k - run_.range().first)] = m.coverage;
+  parts_[std::size_t(k - run_.range().first)] = m.parts;
   {
     std::lock_guard<std::mutex> lock(gel_mutex_);
     gel_sum_ += cv::Vec3d(m.gel[0], m.gel[1], m.gel[2]);
@@ -118,15 +121,23 @@ cv::Mat MaskStageJob::compute(int k, const cv::Mat& rgb, const CtSlice& ct, cv::
 
 StageResult MaskStageJob::finish() {
   const SliceRange range = run_.range();
-  nlohmann::json per = nlohmann::json::object();
+  nlohmann::json per = nlohmann::json::object(), parts = nlohmann::json::object();
   double sum = 0;
-  int counted = 0;
+  int counted = 0, removed = 0;
   for (int i = 0; i < range.size(); ++i) {
     if (coverage_[std::size_t(i)] < 0) continue;
-    per[std::to_string(range.first + i)] = coverage_[std::size_t(i)];
+    const std::string key = std::to_string(range.first + i);
+    per[key] = coverage_[std::size_t(i)];
+    const PartCounts& p = parts_[std::size_t(i)];
+    parts[key] = {{"kept", p.kept}, {"removed", p.removed}};
+    removed += p.removed;
     sum += coverage_[std::size_t(i)], ++counted;
   }
   run_.set_quality("coverage", per);
+  // The part rule per slice (outline.h): body parts kept, and parts removed as debris, holder
+  // or table (or, colour-only, not tissue-coloured).
+  run_.set_quality("parts", parts);
+  run_.set_quality("parts_removed", removed);
   run_.set_quality("mean_coverage", counted ? sum / counted : 0.0);
   run_.set_quality("colour_only_slices", colour_only_.load());
   if (gel_count_ > 0)

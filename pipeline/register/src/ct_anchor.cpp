@@ -165,18 +165,59 @@ cv::Mat predict_ct(const cv::Mat& rgb, const double coef[kFeatures]) {
   return out;
 }
 
-// A soft body map (0 outside, 1 inside, a ramp across the edge) reduced to the body: the
-// largest component of its half level, grown by two pixels for the soft edge. Fiducial tubes
-// and debris in the gel, which the other modality does not show, are cut off.
-cv::Mat body_only(cv::Mat soft) {
+// A soft body map (0 outside, 1 inside, a ramp across the edge) reduced to the body: every
+// part of its half level that the part rule keeps (outline.h; `rgb`, when given, the colour
+// slice for its colour test, CV_32FC3 in 0..1), grown by two pixels for the soft edge. Fiducial
+// tubes, holders and debris, which the other modality does not show, are cut off; arms, legs
+// and toes all stay (the header: why the anchor must see them all).
+cv::Mat body_only(cv::Mat soft, double min_part_px, const cv::Mat& rgb = cv::Mat()) {
+  PartRule rule;
+  rule.min_area_px = min_part_px;
+  cv::Mat rgb8;
+  if (!rgb.empty()) rgb.convertTo(rgb8, CV_8UC3, 255.0);
   cv::Mat keep;
-  cv::dilate(largest_component(soft > 0.5f), keep,
+  // Holes filled first: the part rule judges a part's shape by its outline (lungs and cavities
+  // would make a torso look like a band).
+  cv::dilate(body_parts(fill_holes(soft > 0.5f), rule, nullptr, rgb8), keep,
              cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(5, 5)));
   soft.setTo(cv::Scalar(0.0), keep == 0);
   return soft;
 }
 
+// The shift s that maximises the overlap Σ_p tmpl(p) · moving(p + s) of two soft body maps
+// (the convention of cv::phaseCorrelate: moving ≈ tmpl shifted by s), by one zero-padded
+// correlation through the DFT, refined by a parabola in x and in y. Every part counts with its
+// area: the shift that overlaps both legs beats the one that lays one leg on the other.
+cv::Point2d overlap_shift(const cv::Mat& tmpl, const cv::Mat& moving) {
+  const int w = cv::getOptimalDFTSize(2 * tmpl.cols), h = cv::getOptimalDFTSize(2 * tmpl.rows);
+  cv::Mat a = cv::Mat::zeros(h, w, CV_32F), b = cv::Mat::zeros(h, w, CV_32F);
+  tmpl.copyTo(a(cv::Rect(0, 0, tmpl.cols, tmpl.rows)));
+  moving.copyTo(b(cv::Rect(0, 0, moving.cols, moving.rows)));
+  cv::Mat fa, fb, product, corr;
+  cv::dft(a, fa, 0, tmpl.rows);
+  cv::dft(b, fb, 0, moving.rows);
+  cv::mulSpectrums(fb, fa, product, 0, true);  // F(moving) · conj(F(tmpl))
+  cv::idft(product, corr, cv::DFT_REAL_OUTPUT | cv::DFT_SCALE);
+  cv::Point peak;
+  cv::minMaxLoc(corr, nullptr, nullptr, nullptr, &peak);
+  auto at = [&](int x, int y) { return double(corr.at<float>((y + h) % h, (x + w) % w)); };
+  auto vertex = [](double l, double c, double r) {
+    const double d = l - 2.0 * c + r;
+    return d < 0.0 ? std::clamp(0.5 * (l - r) / d, -0.5, 0.5) : 0.0;
+  };
+  const double c = at(peak.x, peak.y);
+  const double dx = vertex(at(peak.x - 1, peak.y), c, at(peak.x + 1, peak.y));
+  const double dy = vertex(at(peak.x, peak.y - 1), c, at(peak.x, peak.y + 1));
+  // Indices past the middle are negative shifts.
+  const double sx = (peak.x > w / 2 ? peak.x - w : peak.x) + dx;
+  const double sy = (peak.y > h / 2 ? peak.y - h : peak.y) + dy;
+  return {sx, sy};
+}
+
 // Capture on soft body masks (step 2 of the header): the template → input matrix at this level.
+// At each angle two candidate shifts, phase correlation (sharp, led by the edges) and the
+// overlap of the whole maps (overlap_shift: no window, every part by its area), ranked by the
+// normalised correlation of the whole aligned maps.
 std::optional<cv::Matx23d> capture(const cv::Mat& tmpl, const cv::Mat& input) {
   cv::Mat window;
   cv::createHanningWindow(window, tmpl.size(), CV_32F);
@@ -186,11 +227,9 @@ std::optional<cv::Matx23d> capture(const cv::Mat& tmpl, const cv::Mat& input) {
     double angle = 0, score = -2;
     cv::Matx23d m;
   };
-  auto evaluate = [&](double angle) {
+  auto candidate = [&](double angle, cv::Point2d s) {
     Candidate cand;
     cand.angle = angle;
-    const cv::Mat rotated = rotate_about_centre(input, angle);
-    const cv::Point2d s = cv::phaseCorrelate(tmpl_w, rotated.mul(window));
     const double a = angle * kPi / 180.0;
     const cv::Point2d rs(std::cos(a) * s.x - std::sin(a) * s.y,
                          std::sin(a) * s.x + std::cos(a) * s.y);
@@ -203,6 +242,12 @@ std::optional<cv::Matx23d> capture(const cv::Mat& tmpl, const cv::Mat& input) {
     const float v = score.at<float>(0, 0);
     cand.score = std::isfinite(v) ? v : -1.0;
     return cand;
+  };
+  auto evaluate = [&](double angle) {
+    const cv::Mat rotated = rotate_about_centre(input, angle);
+    const Candidate phase = candidate(angle, cv::phaseCorrelate(tmpl_w, rotated.mul(window)));
+    const Candidate overlap = candidate(angle, overlap_shift(tmpl, rotated));
+    return overlap.score > phase.score ? overlap : phase;
   };
   // −10°..10°, refined by half steps and a parabola (register/rotation_search.h).
   const Candidate best = sweep_rotation(evaluate);
@@ -292,7 +337,7 @@ AnchorEstimate estimate_ct_anchor(const RegisterFrame& frame, const cv::Mat& ct_
     // alignment (rotation most). Everything outside the body (grown by one pixel, its partial-
     // volume edge) becomes air.
     cv::Mat keep;
-    cv::dilate(ct_body_mask(ct32, options.hu_threshold), keep,
+    cv::dilate(ct_body_mask(ct32, options.hu_threshold, options.min_part_ct_px), keep,
                cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(3, 3)));
     ct32.setTo(cv::Scalar(kHuLow), keep == 0);
   }
@@ -335,14 +380,16 @@ AnchorEstimate estimate_ct_anchor(const RegisterFrame& frame, const cv::Mat& ct_
   // Working-grid template → input matrix.
   cv::Matx23d m;
   bool have = false;
+  // The part rule's minimum area on the working grid (CT pixels → colour pixels → working).
+  const double min_part_work = options.min_part_ct_px * ct_to_rgb.scale * ct_to_rgb.scale * sx * sy;
   const double capture_scale =
       std::min(1.0, double(kCaptureEdge) / std::max(colour.cols, colour.rows));
   const cv::Mat soft_ct = [&] {
     cv::Mat s;
     ct_work.convertTo(s, CV_32F, 1.0 / 600.0, -(options.hu_threshold - 300.0) / 600.0);
-    return body_only(cv::Mat(cv::max(cv::min(s, 1.0), 0.0)));
+    return body_only(cv::Mat(cv::max(cv::min(s, 1.0), 0.0)), min_part_work);
   }();
-  const cv::Mat soft_colour = body_only(colour_softbody(colour));
+  const cv::Mat soft_colour = body_only(colour_softbody(colour), min_part_work, colour);
   auto fine = [&](cv::Matx23d start, double* rho_out) -> std::optional<cv::Matx23d> {
     // Two passes: half working resolution, then full; the polynomial refitted before each.
     double rho = -1.0;

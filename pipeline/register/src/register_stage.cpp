@@ -150,7 +150,7 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
   if (!reg.overrides.empty()) stage_inputs.push_back(reg.overrides);
   StageRun run(config, "register", n, options,
                {"rgb", "register", "ct", "spacing_mm", "mask.hu_threshold", "mask.gel_colour",
-                "mask.gel_distance", "work.write_registered"},
+                "mask.gel_distance", "mask.min_part_mm2", "work.write_registered"},
                stage_inputs);
   // The stage spreads slices over run.threads() workers: OpenCV's own pool stays off (with
   // --threads 1 too, so that one thread means one core, as a SLURM task of one CPU expects).
@@ -162,6 +162,9 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
   AnchorOptions anchor_options;
   anchor_options.hu_threshold = config.mask.hu_threshold;
   anchor_options.iterations = reg.ecc_iterations;
+  if (config.ct)
+    anchor_options.min_part_ct_px = config.mask.min_part_mm2 / (config.ct->pixel_spacing_mm[0] *
+                                                                config.ct->pixel_spacing_mm[1]);
 
   // 1. Per-slice records of the range.
   make_directories(run.dir() + "/pairs");

@@ -40,6 +40,7 @@ struct PhantomPreset {
   bool defects = false;                   // one black and one duplicated slice by default
   bool fiducials = true;                  // the two fiducial tubes by default
   bool varying_anatomy = false;           // anatomy moves, grows, vanishes and tapers along z
+  bool limbs = false;                     // a whole body: head, arms, legs, feet, toes, table
 };
 
 // The presets: tiny 96×64×24, small 256×192×64, medium 512×384×160, vhp 2048×1216×16 (the
@@ -47,7 +48,13 @@ struct PhantomPreset {
 // 256×192×96 and anatomy-vhp 2048×1216×16 (no fiducials, CT 2× coarser, and an anatomy that
 // does not flatter registration: the outline's centre moves steadily by 0.3 × 0.12 of H/2 over
 // the stack, the body tapers to nothing at both ends (size ∝ sin(π t)^0.3), organs wander,
-// grow and vanish, and the texture is drawn afresh for every slice).
+// grow and vanish, and the texture is drawn afresh for every slice); male 2048×1216×200 (CT
+// 512², 1.4 mm) and male-small 384×228×64 (CT 1.5× coarser): a whole body from head to toes
+// (issue #30), several parts in most slices: the head tapering from nothing, arms beside the
+// torso (gaps 2–40 px at 1216 px height, the right arm resting on the table in part of the
+// stack), the pelvis parting into two legs of the same size, two feet, five toes per foot
+// tapering to nothing; a table in the CT touching the torso and the arm in some slices; no
+// fiducials; anatomy as varying as `anatomy`'s.
 // Throws UsageError naming the preset when it is unknown.
 PhantomPreset phantom_preset(const std::string& name);
 

@@ -76,6 +76,10 @@ struct MaskOptions {
   bool refine_gel = true;        // refine the edge by distance to the gel colour
   std::optional<std::array<int, 3>> gel_colour;  // RGB of the gel; estimated when absent
   double gel_distance = 40.0;  // colour distance under which a boundary pixel counts as gel
+  // Parts of a slice's body smaller than this (mm², in the slice's plane) are debris (outline.h,
+  // the part rule). A finger is ~150 mm² across, its tip a few tens; the CT opening already
+  // removes anything narrower than 2·kCtDetachPx + 1 CT pixels.
+  double min_part_mm2 = 5.0;
 };
 
 struct PackOptions {

@@ -4,13 +4,37 @@
 //   - CT (ct_body_mask, at CT resolution): HU > threshold with its holes filled (a cavity near
 //     the edge of a small body leaves a band of tissue thinner than the opening); an opening of
 //     radius kCtDetachPx CT pixels detaches what merely touches the body (head-holder, table:
-//     structures thinner than about 2·kCtDetachPx), the largest connected component is the body,
-//     then the threshold is restricted to that component grown by kCtDetachPx + 1 (restores the
-//     body's own edge; a holder separated from the body by more than that, touching it only through
-//     thin bridges, stays out); holes filled (lungs).
+//     structures thinner than about 2·kCtDetachPx); the part rule below keeps every part that is
+//     body; then what the opening shaved off the kept parts' own edge comes back: the threshold
+//     within kCtDetachPx + 1 of a kept part, except a piece of the shaved-off set that reaches
+//     farther than kHolderReachPx from every kept part (a holder or table touching the body, or
+//     a holder separated from it and touching it only through thin bridges, stays out); holes
+//     filled (lungs).
 //   - colour (colour_body_mask): pixels farther than a colour distance from the gel colour
-//     (estimate_gel_colour: the median of the slice's border frame), an opening, the largest
-//     component, holes filled.
+//     (estimate_gel_colour: the median of the slice's border frame), an opening, holes filled,
+//     the part rule with its colour test.
+//
+// The part rule (body_parts): EVERY body part is body. A real axial slice holds several parts
+// (arms beside the torso, two legs, two feet, toes, separate lobes at the top of a head), of
+// nearly equal size below the pelvis: ranking parts by size (keeping the largest component, the
+// rule before issue #30) drops arms and a leg. A connected part (8-connected, after the opening,
+// holes filled) is removed only by what tells it apart from tissue:
+//   - debris: smaller than the minimum part area (config mask.min_part_mm2, converted to pixels
+//     of the image by the caller). A part narrower than the opening is gone before the rule.
+//   - holder, table, tube walls, cables: thin and long. Elongation = area / (π r²), r the part's
+//     largest inscribed radius (the maximum of its distance transform): 1 for a disc, a/b for an
+//     ellipse, 4L/(π t) for a band of length L and thickness t. Body cross-sections are compact
+//     (torso 1.5–2.5, a foot's sole plane about 3, a finger about 1); a head-holder arc or a
+//     table is a band (10 and more). Parts above kMaxPartElongation are removed. In the CT, a
+//     thin spot of a band that the opening left (inscribed radius ≤ kCtDetachPx + 1.5) and that
+//     touches a shaved-off piece larger than itself is a fragment of that band: removed.
+//   - colour (colour only, when the slice is given): tissue in a cryosection is red, pink, cream,
+//     brown or white, never bluer or greener than it is red: a part whose mean colour has
+//     G > R + kTissueColourSlack or B > R + kTissueColourSlack (gel, green fiducial tubes) is
+//     removed.
+// Not done yet: continuity along z (a small part that continues into its neighbours is body, an
+// isolated speck is not) needs the neighbouring slices, which the per-slice stages do not see;
+// the minimum area stands in for it.
 //
 // Masks are CV_8UC1 with values 0 / 255; colour slices are CV_8UC3 in RGB order; distances in
 // RGB units (0..255 per channel); radii in pixels of the image they are given. All functions are
@@ -23,9 +47,31 @@ namespace vispack::pipeline {
 
 // Opening radius (CT pixels) that cuts a head-holder or table from the body in the CT.
 inline constexpr int kCtDetachPx = 2;
+// A piece the opening removed that reaches farther than this (CT pixels) from every kept part is
+// a holder or table touching the body: none of it comes back.
+inline constexpr int kHolderReachPx = 3 * (kCtDetachPx + 1);
+// Parts more elongated than this (area / (π r²), r the largest inscribed radius) are holders.
+inline constexpr double kMaxPartElongation = 7.0;
+// RGB units by which a tissue part's mean green or blue may exceed its mean red.
+inline constexpr double kTissueColourSlack = 10.0;
 
-// Largest 8-connected component of a 0/255 mask (empty mask → empty mask).
-cv::Mat largest_component(const cv::Mat& mask);
+// What the part rule keeps. `min_area_px`: parts with fewer pixels are removed (0: none);
+// `max_elongation`: parts above are removed (0: no shape test).
+struct PartRule {
+  double min_area_px = 0.0;
+  double max_elongation = kMaxPartElongation;
+};
+// Parts of one slice kept and removed by the rule (for the stage reports).
+struct PartCounts {
+  int kept = 0;
+  int removed = 0;
+};
+// The part rule (above) on a 0/255 mask: every 8-connected part that passes is kept. The shape
+// test reads the parts' outlines: fill their holes first (fill_holes). With a
+// non-empty `rgb` (CV_8UC3, same size) the colour test applies too. `counts` (optional) receives
+// the parts kept and removed. Throws Error when `rgb` differs in size.
+cv::Mat body_parts(const cv::Mat& mask, const PartRule& rule, PartCounts* counts = nullptr,
+                   const cv::Mat& rgb = cv::Mat());
 // Fills holes: background not 4-connected to the image border becomes 255.
 cv::Mat fill_holes(const cv::Mat& mask);
 // Opening with a disc of `radius` pixels (radius 0: unchanged).
@@ -37,14 +83,19 @@ cv::Mat ct_hu_float(const cv::Mat& ct_hu);
 // Throws InputError naming `what` unless `rgb` is a non-empty CV_8UC3 image.
 void require_rgb_slice(const cv::Mat& rgb, const char* what);
 
-// The body at CT resolution (see above). `ct_hu`: CV_32F (or CV_16S) HU.
-cv::Mat ct_body_mask(const cv::Mat& ct_hu, double hu_threshold);
+// The body at CT resolution (see above). `ct_hu`: CV_32F (or CV_16S) HU; `min_part_px`: the
+// minimum part area in CT pixels (mask.min_part_mm2 / CT pixel area); `counts` (optional): the
+// parts kept and removed by the rule.
+cv::Mat ct_body_mask(const cv::Mat& ct_hu, double hu_threshold, double min_part_px,
+                     PartCounts* counts = nullptr);
 
 // Median colour (RGB) of a 4-pixel frame along the border of an RGB CV_8UC3 slice.
 cv::Vec3f estimate_gel_colour(const cv::Mat& rgb);
 // 0/255 where the RGB colour is farther than `distance` from `gel`.
 cv::Mat non_gel(const cv::Mat& rgb, const cv::Vec3f& gel, double distance);
-// Colour-only body: non_gel, opening, largest component, holes filled.
-cv::Mat colour_body_mask(const cv::Mat& rgb, const cv::Vec3f& gel, double distance, int opening_px);
+// Colour-only body: non_gel, opening, holes filled, the part rule with the colour test
+// (`min_part_px` in pixels of `rgb`). `counts` (optional): the parts kept and removed.
+cv::Mat colour_body_mask(const cv::Mat& rgb, const cv::Vec3f& gel, double distance, int opening_px,
+                         double min_part_px, PartCounts* counts = nullptr);
 
 }  // namespace vispack::pipeline

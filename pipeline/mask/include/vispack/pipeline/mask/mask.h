@@ -5,10 +5,12 @@
 //   1. CT slice (k + ct.slice_offset) in HU: HU > L, the edge level L = mask_edge_level_hu:
 //      mask.hu_threshold, but never above kAirTissueMidpointHu (−500 HU).
 //   2. Detach what merely touches the body (head-holder, table): an opening of radius
-//      kCtDetachPx CT pixels (removes structures thinner than about 2·kCtDetachPx), the largest
-//      connected component, then the threshold restricted to that component grown by
-//      kCtDetachPx + 1 (restores the body's own edge; a holder separated from the body by more
-//      than that, touching it only through thin bridges, stays out); holes filled (lungs).
+//      kCtDetachPx CT pixels (removes structures thinner than about 2·kCtDetachPx), every part
+//      that is body by the part rule (outline.h: not smaller than mask.min_part_mm2, not thin and
+//      long like a holder or table; never "the largest component": arms, two legs and toes are
+//      several parts of one slice), then the threshold within kCtDetachPx + 1 of the kept parts
+//      (restores their own edge; a holder or table touching the body, or separated from it and
+//      touching it only through thin bridges, stays out); holes filled (lungs).
 //      Steps 1–2 are ct_body_mask (outline.h), shared with registration.
 //   3. Carried onto the output grid (the registered colour grid) through ct_to_rgb from
 //      transforms.json with a sub-pixel edge: the output pixel is body where the CT's HU,
@@ -22,10 +24,11 @@
 //      the CT mask still covers at the edge, gel-filled notches. Gel-coloured pixels enclosed
 //      by tissue, and anything deeper than the band, stay.
 //   5. Where step 4 removed pixels: an opening of mask.opening_px output pixels (removing gel
-//      connected to the outside opens no holes). Without refinement: the opening, the largest
-//      component and holes filled, on the carried CT mask.
+//      connected to the outside opens no holes). Without refinement: the opening, the part
+//      rule's minimum area and holes filled, on the carried CT mask.
 // Without CT (no "ct" in the config, or a slice beyond the CT stack) the mask is colour-only:
-// distance to the gel > gel_distance, then step 5.
+// distance to the gel > gel_distance, the opening, the part rule with its colour test (gel and
+// green fiducial tubes are not tissue-coloured), holes filled.
 //
 // Where the edge was lost before (issue #11): a CT edge is a partial-volume ramp (pixel
 // size, PSF, and along z the slab over which a tapering outline changes), and the old mask took
@@ -80,12 +83,15 @@ cv::Mat draw_mask_overlay(const cv::Mat& rgb, const cv::Mat& mask);
 // One output slice's mask (steps 1–5). `rgb` is the registered colour slice (CV_8UC3, RGB);
 // `ct_hu` (CV_32F HU, CT resolution) may be null for the colour-only mode, then `out_to_ct` is
 // unused. `gel` overrides the estimate when set. Throws InputError on an unsupported image.
+// `pixel_mm2`: the area of one output pixel in mm² (spacing_mm[0] · spacing_mm[1]), which turns
+// mask.min_part_mm2 into pixels (CT pixels through out_to_ct's scale).
 struct MaskSlice {
   cv::Mat mask;           // 0/255 on the output grid
   cv::Vec3f gel;          // the gel colour used
   double coverage = 0.0;  // fraction of mask pixels
+  PartCounts parts;       // body parts kept and removed (CT parts where the CT decides)
 };
 MaskSlice compute_mask(const cv::Mat& rgb, const cv::Mat* ct_hu, const cv::Matx23d& out_to_ct,
-                       const MaskOptions& options);
+                       const MaskOptions& options, double pixel_mm2);
 
 }  // namespace vispack::pipeline

@@ -15,6 +15,7 @@
 #include "vispack/pipeline/core/stage_run.h"
 #include "vispack/pipeline/core/work_layout.h"
 #include "vispack/pipeline/imaging/intermediates.h"
+#include "vispack/pipeline/imaging/outline.h"
 
 namespace vispack::pipeline {
 
@@ -54,7 +55,8 @@ class MaskStageJob {
   const Config& config_;
   const StackInputs& inputs_;
   StageRun run_;
-  std::vector<double> coverage_;  // per slice of the range, -1 = not computed
+  std::vector<double> coverage_;   // per slice of the range, -1 = not computed
+  std::vector<PartCounts> parts_;  // per slice of the range: body parts kept and removed
   std::atomic<long long> compute_ns_{0};
   std::atomic<int> colour_only_{0};
   std::mutex gel_mutex_;

@@ -13,9 +13,12 @@
 //      clamped to [−1000, 1000] HU. Its body (HU > hu_threshold) gives the body fraction and
 //      the radius of gyration (the lever arm of the rotation).
 //   2. Capture: soft body masks of both modalities (CT: HU around hu_threshold; colour:
-//      distance from the gel colour, taken as the median of the slice border) at a level whose
-//      longer edge is about 128 px; phase correlation at rotations −10°..10° (step 2.5°, best
-//      refined by a parabola), ranked by normalised correlation, then ECC (MOTION_EUCLIDEAN) on
+//      distance from the gel colour, taken as the median of the slice border), each cut to ALL
+//      its body parts by the part rule (outline.h body_parts; colour with its colour test, so
+//      the green fiducial tubes take no part), at a level whose longer edge is about 128 px; at
+//      rotations −10°..10° (step 2.5°, best refined by a parabola) two candidate shifts, phase
+//      correlation and the largest overlap of the whole maps (a zero-padded correlation: every
+//      part weighs its area), ranked by normalised correlation, then ECC (MOTION_EUCLIDEAN) on
 //      the blurred masks. Without `initial` this runs always; with it, only if the refinement
 //      from `initial` fails.
 //   3. Refinement: a multimodal ECC. The colour → HU relation is unknown and not linear (gel,
@@ -24,8 +27,8 @@
 //      current alignment (the correlation ratio with a polynomial intensity function, a
 //      standard multimodal measure). ECC (MOTION_EUCLIDEAN, sub-pixel) then aligns predicted
 //      and CT; the polynomial is refitted and ECC repeated (half working resolution, then full).
-//   4. Outline refinement: ECC of the two soft body masks (each cut to its largest component,
-//      so fiducial tubes in the gel take no part) at full working resolution, from step 3's
+//   4. Outline refinement: ECC of the two soft body masks (all body parts, as in step 2) at
+//      full working resolution, from step 3's
 //      result; kept when it converges within a few pixels and 1° of it. The outline is what both
 //      modalities show alike; the intensity map of step 3 is not exact inside the body, which
 //      biased a small body's rotation by tenths of a degree (docs/BENCHMARKS.md, issue #11).
@@ -33,6 +36,15 @@
 //      coefficient; confidence = clamp((correlation − 0.4) / 0.4)
 //      × clamp(body_fraction / 0.03): slices whose body is a small patch (the ends of the
 //      stack) or whose match is poor get low confidence; none (body_fraction < 0.1 %) → not ok.
+// Why every part takes part: below the pelvis a slice holds two legs of nearly the same size
+// and shape. Matched part by part (each side reduced to its largest component, as before issue
+// #30), the left leg of one image may pair with the right leg of the other: an alignment that
+// is off by the legs' separation (hundreds of pixels) and correlates as well as the truth. A
+// symmetric pair cannot capture the whole-slice match: shifting one image by the separation
+// lays one leg on the other and leaves the second leg on gel, so at most half the body
+// overlaps, while the true alignment overlaps both; the normalised correlation of the whole
+// soft maps (capture) and ECC on them rank the true alignment first. Only a part the other
+// modality lacks (a fiducial tube, a holder) could pull it, and the part rule removes those.
 // Cost: about the cost of one pair estimate on a 2048×1216 slice with CT 2.8× coarser.
 // All functions are pure and thread-safe.
 #pragma once
@@ -55,6 +67,8 @@ double anchor_working_scale(const Config& config);
 struct AnchorOptions {
   double hu_threshold = -400.0;  // CT body threshold (mask.hu_threshold)
   int iterations = 50;           // ECC iteration limit per refinement pass
+  // The part rule's minimum area in CT pixels (mask.min_part_mm2 / CT pixel area; outline.h).
+  double min_part_ct_px = 0.0;
 };
 
 // One slice's CT anchor.
