@@ -14,6 +14,7 @@
 #include "vispack/common/error.h"
 #include "vispack/common/parallel.h"
 #include "vispack/pipeline/slice_io.h"
+#include "vispack/pipeline/slice_z.h"
 
 namespace vispack::pipeline {
 
@@ -303,8 +304,25 @@ LabelsStageJob::LabelsStageJob(const Config& config, const StageOptions& options
     throw ConfigError(cat(config.path, ": seg: not configured (no segmentation to map)"));
   const SegSource& seg = *config.seg;
   stack_ = stack_slices(config);
-  for (const auto& f : list_slices(seg))
-    seg_by_number_[f.number] = f.path;
+  const int n = int(stack_.size());
+  if (seg.slice_spacing_mm) {
+    // Each colour slice takes the segmentation slice nearest in z (slice_z.h, issue 31).
+    seg_files_ = list_slices(seg);
+    check_no_missing_slice(seg, seg_files_, "segmentation");
+  } else {
+    for (const auto& f : list_slices(seg))
+      seg_by_number_[f.number] = f.path;
+    // Matched by file number: a segmentation of fewer slices than half the colour stack's is a
+    // stack at another spacing, never to be paired by number (issue 31).
+    int matched = 0;
+    for (const auto& f : stack_)
+      matched += seg_by_number_.count(f.number) ? 1 : 0;
+    if (n > 1 && 2 * matched < n)
+      throw ConfigError(cat(config.path, ": seg: ", seg_by_number_.size(), " slices, of which ",
+                            matched, " match the number of one of the colour stack's ", n,
+                            " slices; set seg.slice_spacing_mm (and seg.z_offset_mm) to place "
+                            "them along z"));
+  }
 
   // Transforms: from the register stage, or identities when registration is disabled.
   tpath_ = transforms_path(config);
@@ -328,14 +346,25 @@ LabelsStageJob::LabelsStageJob(const Config& config, const StageOptions& options
 }
 
 std::string LabelsStageJob::seg_path(int k) const {
+  if (config_.seg->slice_spacing_mm) {
+    const int seg_j = seg_at_colour_slice(config_, int(seg_files_.size()), k);
+    return seg_j < 0 ? "" : seg_files_[std::size_t(seg_j)].path;
+  }
   auto it = seg_by_number_.find(stack_[std::size_t(k)].number);
   return it == seg_by_number_.end() ? "" : it->second;
+}
+
+int LabelsStageJob::seg_grid_slice(int k) const {
+  if (!config_.seg->slice_spacing_mm) return k;
+  const int seg_j = seg_at_colour_slice(config_, int(seg_files_.size()), k);
+  return seg_j < 0 ? k : colour_slice_of_seg(config_, int(stack_.size()), seg_j);
 }
 
 std::string LabelsStageJob::input_fingerprint(int k) const {
   const std::string path = seg_path(k);
   Fingerprint fp;
   fp.text(path.empty() ? "no-seg" : "seg").file(path).file(stack_[std::size_t(k)].path);
+  if (config_.seg->slice_spacing_mm) fp.text("grid").number(seg_grid_slice(k));
   return fp.str();
 }
 
@@ -352,7 +381,7 @@ cv::Mat LabelsStageJob::compute(int k) {
   std::array<double, 2> center{};
   cv::Size out_size;
   if (have_transforms_) {
-    t = transforms_.slices[std::size_t(k)];
+    t = transforms_.slices[std::size_t(seg_grid_slice(k))];
     center = transforms_.center_px;
     out_size = cv::Size(transforms_.width, transforms_.height);
   }

@@ -16,6 +16,7 @@
 #include "vispack/pipeline/opencv_threads.h"
 #include "vispack/pipeline/register/ct_anchor.h"
 #include "vispack/pipeline/slice_io.h"
+#include "vispack/pipeline/slice_z.h"
 #include "vispack/pipeline/transforms.h"
 #include "vispack/pipeline/work_layout.h"
 
@@ -48,23 +49,24 @@ MaskStageJob::MaskStageJob(const Config& config, const StackInputs& inputs,
            {"mask", "ct", "rgb", "work.write_ct", "work.overlay_max_px"},
            {transforms_path(config)}) {
   coverage_.assign(static_cast<std::size_t>(run_.range().size()), -1.0);
+  colour_only_slice_.assign(static_cast<std::size_t>(run_.range().size()), 0);
 }
 
 std::string MaskStageJob::input_fingerprint(int k) const {
   // The registered colour is rebuilt from input slice k and transforms.json (a stage input:
   // a new transforms.json reruns every slice).
-  const int ct_k = config_.ct ? k + config_.ct->slice_offset : -1;
-  const bool has_ct = config_.ct && ct_k >= 0 && ct_k < int(inputs_.ct.size());
+  const CtAtZ at = ct_at_colour_slice(config_, int(inputs_.ct.size()), k);
   Fingerprint fp;
   fp.text("mask-v2").file(inputs_.rgb[std::size_t(k)].path);  // v2: colour from the input slice
-  if (has_ct) fp.file(inputs_.ct[std::size_t(ct_k)].path);
+  if (at.inside()) fp.file(inputs_.ct[std::size_t(at.below)].path);
+  if (at.inside() && !at.exact())
+    fp.text("above").number(at.w_above).file(inputs_.ct[std::size_t(at.above)].path);
   return fp.str();
 }
 
 std::vector<std::string> MaskStageJob::outputs(int k) const {
   std::vector<std::string> outs = {mask_path(config_, k), run_.slice_path("overlay", k)};
-  const int ct_k = config_.ct ? k + config_.ct->slice_offset : -1;
-  const bool has_ct = config_.ct && ct_k >= 0 && ct_k < int(inputs_.ct.size());
+  const bool has_ct = ct_at_colour_slice(config_, int(inputs_.ct.size()), k).inside();
   if (has_ct && config_.work.write_ct) outs.push_back(mask_ct_path(config_, k));
   return outs;
 }
@@ -89,6 +91,7 @@ cv::Mat MaskStageJob::compute(int k, const cv::Mat& rgb, const CtSlice& ct, cv::
     bytes += ct_hu.total() * 2;
   } else {
     ++colour_only_;
+    colour_only_slice_[std::size_t(k - run_.range().first)] = 1;
   }
   const auto t0 = std::chrono::steady_clock::now();
   // A black (lost) colour slice has no colour to refine with: its mask is the CT's alone.
@@ -129,6 +132,13 @@ StageResult MaskStageJob::finish() {
   run_.set_quality("coverage", per);
   run_.set_quality("mean_coverage", counted ? sum / counted : 0.0);
   run_.set_quality("colour_only_slices", colour_only_.load());
+  if (config_.ct) {
+    // Slices of this run whose z lies outside the CT's z range: no CT, a colour-only mask.
+    std::vector<int> outside;
+    for (int i = 0; i < range.size(); ++i)
+      if (colour_only_slice_[std::size_t(i)]) outside.push_back(range.first + i);
+    run_.set_quality("outside_ct_slices", outside);
+  }
   if (gel_count_ > 0)
     run_.set_quality("mean_gel_colour", {gel_sum_[0] / gel_count_, gel_sum_[1] / gel_count_,
                                          gel_sum_[2] / gel_count_});

@@ -9,7 +9,7 @@
 //
 // Grids and frames (docs/ARCHITECTURE.md "Slice transforms", COORD "The output frame"):
 //   CT grid:      Wct × Hct pixels of ct.spacing_mm[0] mm, slice k of the output = CT slice
-//                 first + k (written as ct/ct_<k>.png, slice_offset 0).
+//                 first + k (written as ct/ct_<k>.png, ct.z_offset_mm 0).
 //   output grid:  W = scale·Wct + 2·margin, H = scale·Hct + 2·margin pixels of
 //                 ct.spacing_mm[0] / scale mm (the margin, 32·scale by default, is gel around the
 //                 CT's field of view: room for the drift; outside the CT the model is air); the

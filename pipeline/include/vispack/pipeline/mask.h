@@ -2,8 +2,9 @@
 //
 // The mask of output slice k comes from the CT, because colour thresholding alone fails in the
 // translucent blue gel (tissue shows through it, fiducial tubes of another colour sit in it):
-//   1. CT slice (k + ct.slice_offset) in HU: HU > L, the edge level L = mask_edge_level_hu:
-//      mask.hu_threshold, but never above kAirTissueMidpointHu (−500 HU).
+//   1. The CT at slice k's z in HU (slice_z.h: linear between the CT slices around it): HU > L,
+//      the edge level L = mask_edge_level_hu: mask.hu_threshold, but never above
+//      kAirTissueMidpointHu (−500 HU).
 //   2. Detach what merely touches the body (head-holder, table): an opening of radius
 //      kCtDetachPx CT pixels (removes structures thinner than about 2·kCtDetachPx), the largest
 //      connected component, then the threshold restricted to that component grown by

@@ -56,6 +56,8 @@ class MaskStageJob {
   std::vector<double> coverage_;  // per slice of the range, -1 = not computed
   std::atomic<long long> compute_ns_{0};
   std::atomic<int> colour_only_{0};
+  // Per slice of the range: 1 = computed without CT (outside the CT's z range, slice_z.h).
+  std::vector<char> colour_only_slice_;
   std::mutex gel_mutex_;
   cv::Vec3d gel_sum_{0, 0, 0};
   int gel_count_ = 0;

@@ -34,7 +34,23 @@ std::string mask_ct_path(const Config& config, int index);
 std::string labels_path(const Config& config, int index);
 
 // The colour stack: list_slices(config.rgb). Its order defines the stack index k (= output z).
+// Throws InputError when a CT slice is missing inside the CT stack, ConfigError when the CT or
+// the segmentation covers less than half the colour stack's z extent (z_extent_warnings).
 std::vector<SliceFile> stack_slices(const Config& config);
+
+// Slices placed along z by their position in their stack (CT; segmentation with
+// seg.slice_spacing_mm) must not miss one inside the stack: that would shift every later one.
+// The step is the smallest difference between consecutive numbers (1 for ct_0000, ct_0001, ...;
+// 3 for ct_0000, ct_0003, ...). Throws InputError naming the folder, the missing number and its
+// neighbours; `what` names the stack ("CT").
+void check_no_missing_slice(const SliceSource& source, const std::vector<SliceFile>& files,
+                            const std::string& what);
+
+// The z extent checks of slice_z.h check_z_extents for the config's CT and segmentation folders
+// against a colour stack of `colour_count` slices: the warnings (extents that differ by more than
+// two of the input's slices); throws ConfigError (exit 5) naming the key when an input covers
+// less than half of the colour stack.
+std::vector<std::string> z_extent_warnings(const Config& config, int colour_count);
 
 // The register stage's transforms for a stack of `slice_count` slices: reads
 // <work>/register/transforms.json. Throws InputError naming the file when it is missing ("run
@@ -59,13 +75,25 @@ StackInputs read_stack_inputs(const Config& config);
 // inputs give the same bytes. Throws InputError naming the slice when its size differs.
 cv::Mat registered_colour(const Config& config, const StackInputs& inputs, int index);
 
-// CT slice k + ct.slice_offset in HU (CV_32F, CT resolution) and the map from output pixels to
+// A CT slice file in HU (CV_32F): stored value × ct.slope + ct.intercept. Throws InputError
+// naming the file when it is not single-channel.
+cv::Mat read_ct_hu(const CtSource& ct, const std::string& path);
+
+// The CT in HU (CV_32F, CT resolution) at the z of colour slice `colour_k` (slice_z.h): the one CT
+// slice read as is when the colour slice lies on it (the 1:1 case), else the two CT slices around
+// its z blended linearly in HU; empty outside the CT's z range or without CT. `ct_files` is the
+// CT stack (list_slices(*config.ct)). Throws InputError naming a file that is not single-channel
+// or whose size differs from its neighbour's.
+cv::Mat ct_hu_at_colour_slice(const Config& config, const std::vector<SliceFile>& ct_files,
+                              int colour_k);
+
+// The CT at output slice k's z in HU (ct_hu_at_colour_slice) and the map from output pixels to
 // its pixels (transforms.h output_to_ct with transforms.json's ct_to_rgb, else the config's
-// definition). Without CT, or when the CT stack has no slice for k, `hu` is empty.
+// definition). Without CT, or when slice k lies outside the CT's z range, `hu` is empty.
 struct CtSlice {
   cv::Mat hu;
   cv::Matx23d out_to_ct{1, 0, 0, 0, 1, 0};
-  std::string path;  // the CT file; empty when none
+  std::string path;  // the CT file nearest in z; empty when none
 };
 CtSlice read_ct_slice(const Config& config, const StackInputs& inputs, int index);
 
