@@ -311,12 +311,12 @@ LabelsStageJob::LabelsStageJob(const Config& config, const StageOptions& options
     check_no_missing_slice(seg, seg_files_, "segmentation");
   } else {
     for (const auto& f : list_slices(seg))
-      seg_by_number_[f.number] = f.path;
+      seg_by_number_[{f.number, f.letter}] = f.path;
     // Matched by file number: a segmentation of fewer slices than half the colour stack's is a
     // stack at another spacing, never to be paired by number (issue 31).
     int matched = 0;
     for (const auto& f : stack_)
-      matched += seg_by_number_.count(f.number) ? 1 : 0;
+      matched += seg_by_number_.count({f.number, f.letter}) ? 1 : 0;
     if (n > 1 && 2 * matched < n)
       throw ConfigError(cat(config.path, ": seg: ", seg_by_number_.size(), " slices, of which ",
                             matched, " match the number of one of the colour stack's ", n,
@@ -350,7 +350,8 @@ std::string LabelsStageJob::seg_path(int k) const {
     const int seg_j = seg_at_colour_slice(config_, int(seg_files_.size()), k);
     return seg_j < 0 ? "" : seg_files_[std::size_t(seg_j)].path;
   }
-  auto it = seg_by_number_.find(stack_[std::size_t(k)].number);
+  const SliceFile& colour = stack_[std::size_t(k)];
+  auto it = seg_by_number_.find({colour.number, colour.letter});
   return it == seg_by_number_.end() ? "" : it->second;
 }
 

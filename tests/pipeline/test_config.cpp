@@ -406,7 +406,8 @@ TEST(Config, SchemaAndLoaderAgreeKeyForKey) {
     EXPECT_NE(schema_check(schema, schema, j, "$"), "") << key;
   }
   // Sample configs shipped in configs/ validate against the schema too.
-  for (const char* name : {"phantom-small.json", "vhp-male.template.json"}) {
+  for (const char* name : {"phantom-small.json", "vhp-male.template.json",
+                           "vhp-female.template.json", "vkh-head.template.json"}) {
     json sample = json::parse(read_file(std::string(VISPACK_SOURCE_DIR) + "/configs/" + name),
                               nullptr, true, true);
     EXPECT_EQ(schema_check(schema, schema, sample, "$"), "") << name;

@@ -280,3 +280,32 @@ TEST(SliceZ, SegmentationAtEveryThirdColourSliceTakesTheNearestInZ) {
   EXPECT_GT(on, 10);
   EXPECT_GE(off_sum / off, 0.9);  // the anatomy moves between slices: nearest, not exact
 }
+
+// The VH female's colour files: a number per millimetre and a letter per 0.33 mm slice
+// (avf1001a, avf1001b, avf1001c, avf1002a, ...): pattern "avf{n}{a}.raw" orders them by number,
+// then letter, whatever the order of the folder or the letters' case.
+TEST(SliceZ, LetterSuffixPatternOrdersTheFemalesFiles) {
+  TempDir dir("vispack-slice-z-letters");
+  for (const char* name : {"avf1002a.raw", "avf1001c.raw", "avf1001a.raw", "avf1001B.raw",
+                           "avf1010a.raw", "avf1002b.raw", "avf1001.raw", "notes.txt"})
+    vispack::write_file_atomic(dir / name, "");
+  vp::SliceSource source;
+  source.dir = dir.path();
+  source.pattern = "avf{n}{a}.raw";
+  const auto files = vp::list_slices(source);
+  std::vector<std::string> names;
+  for (const auto& f : files)
+    names.push_back(std::filesystem::path(f.path).filename().string());
+  EXPECT_EQ(names, (std::vector<std::string>{"avf1001a.raw", "avf1001B.raw", "avf1001c.raw",
+                                             "avf1002a.raw", "avf1002b.raw", "avf1010a.raw"}));
+  EXPECT_EQ(files[1].number, 1001);
+  EXPECT_EQ(files[1].letter, 1);
+  // The same number and letter twice is refused naming both files.
+  vispack::write_file_atomic(dir / "avf01001a.raw", "");
+  const std::string e = config_error([&] { vp::list_slices(source); });
+  EXPECT_NE(e.find("slice number 1001a appears twice"), std::string::npos) << e;
+  // {a} anywhere but right after {n} is refused.
+  source.pattern = "avf{a}{n}.raw";
+  EXPECT_NE(config_error([&] { vp::list_slices(source); }).find("{a} (a letter) must follow {n}"),
+            std::string::npos);
+}

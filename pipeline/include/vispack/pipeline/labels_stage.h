@@ -9,6 +9,7 @@
 #include <set>
 #include <string>
 #include <unordered_map>
+#include <utility>
 #include <vector>
 
 #include <nlohmann/json.hpp>
@@ -55,8 +56,9 @@ class LabelsStageJob {
   std::string input_fingerprint(int k) const;
   const Config& config_;
   std::vector<SliceFile> stack_;
-  std::map<int, std::string> seg_by_number_;  // without seg.slice_spacing_mm
-  std::vector<SliceFile> seg_files_;          // with seg.slice_spacing_mm: the stack along z
+  // Without seg.slice_spacing_mm: by (number, letter) of the file name (slice_io.h).
+  std::map<std::pair<int, int>, std::string> seg_by_number_;
+  std::vector<SliceFile> seg_files_;  // with seg.slice_spacing_mm: the stack along z
   std::string tpath_;
   StackTransforms transforms_;
   bool have_transforms_ = false;
