@@ -14,6 +14,7 @@
 #include "vispack/common/error.h"
 #include "vispack/common/parallel.h"
 #include "vispack/common/progress.h"
+#include "vispack/pipeline/layout_check.h"
 #include "vispack/pipeline/opencv_threads.h"
 #include "vispack/pipeline/register.h"
 #include "vispack/pipeline/register_stage.h"
@@ -132,6 +133,10 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
   const std::vector<std::string> z_warnings = z_extent_warnings(config, n);
   for (const auto& w : z_warnings)
     warn(options, w);
+  // A planar raw file read as interleaved (or the reverse) registers "fine" and packs a
+  // scrambled volume: the middle slice's samples tell (layout_check.h; one file read).
+  if (n > 0)
+    check_raw_layout(config.rgb, "rgb.raw.layout", files[std::size_t(n / 2)].path, config.path);
   RegisterOptions reg = config.registration;
   if (!reg.enabled) reg.method = "none";
   if (reg.method != "phase+ecc" && reg.method != "phase" && reg.method != "none")
@@ -280,6 +285,11 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
       solved = solve_stack(all, size, so);
     }
     std::vector<SliceTransform>& slices = solved.slices;
+    if (std::all_of(slices.begin(), slices.end(), [](const SliceTransform& t) { return t.black; }))
+      throw InputError(cat(config.rgb.dir, ": all ", n, " colour slices (pattern \"",
+                           config.rgb.pattern,
+                           "\") are black: nothing to register or pack; check rgb.dir, "
+                           "rgb.pattern and rgb.raw"));
     for (int k = 0; k < n; ++k) {
       slices[std::size_t(k)].number = files[std::size_t(k)].number;
       slices[std::size_t(k)].file = fs::path(files[std::size_t(k)].path).filename().string();
