@@ -33,7 +33,8 @@ int main(int argc, char** argv) {
         "CT pixel / colour pixel (--from-ct: an integer, default 2; presets: the preset's)");
     const auto ct_every = args.option_int(
         "--ct-every", "N",
-        "presets: a CT slice only at every Nth colour slice (config ct.slice_spacing_mm)");
+        "a CT slice only at every Nth colour slice (ct.slice_spacing_mm); --from-ct: the colour\n"
+        "      N times finer along z than the CT, synthesised from the CT interpolated along z");
     const auto seg_every = args.option_int(
         "--seg-every", "N",
         "presets: a segmentation slice only at every Nth colour slice (seg.slice_spacing_mm)");
@@ -70,8 +71,7 @@ int main(int argc, char** argv) {
 
     if (from_ct) {
       if (preset) throw vispack::UsageError("--preset and --from-ct conflict");
-      if (ct_every || seg_every)
-        throw vispack::UsageError("--ct-every and --seg-every apply to the presets only");
+      if (seg_every) throw vispack::UsageError("--seg-every applies to the presets only");
       if (options.rgb_raw || options.seg_jpeg || defects || fiducials)
         throw vispack::UsageError(
             "--rgb-raw, --seg-jpeg, --defects and --fiducials apply to the presets only");
@@ -79,6 +79,7 @@ int main(int argc, char** argv) {
       o.seed = seed_value;
       o.slices = slice_count;
       o.first = first ? static_cast<int>(std::clamp<long long>(*first, -1, 1 << 30)) : -1;
+      if (ct_every) o.ct_every = static_cast<int>(std::clamp<long long>(*ct_every, -1, 1 << 20));
       if (first && *first < 0) throw vispack::UsageError("--first must not be negative");
       if (ct_scale && *ct_scale != std::floor(*ct_scale))
         throw vispack::UsageError("--ct-scale must be an integer with --from-ct");

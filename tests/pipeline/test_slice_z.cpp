@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <functional>
 #include <string>
@@ -18,6 +19,7 @@
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
 #include "vispack/common/nrrd.h"
+#include "vispack/phantom/from_ct.h"
 #include "vispack/phantom/phantom.h"
 #include "vispack/phantom/score.h"
 #include "vispack/pipeline/config.h"
@@ -308,4 +310,51 @@ TEST(SliceZ, LetterSuffixPatternOrdersTheFemalesFiles) {
   source.pattern = "avf{a}{n}.raw";
   EXPECT_NE(config_error([&] { vp::list_slices(source); }).find("{a} (a letter) must follow {n}"),
             std::string::npos);
+}
+
+namespace {
+
+// The realistic case of issue 31: colour synthesised from the real head CT (the phantom's own
+// drift, jump, gel, lighting and noise) at a z spacing `every` times finer than the CT's, the CT
+// interpolated along z to make the colour and the truth, only the CT's own slices kept as the
+// input (vispack-phantom --from-ct --ct-every). 61 colour slices centred in the head; scored over
+// the whole stack. Skips without the sample (scripts/fetch-sample-data.sh head-ct).
+void head_ct_case(int every) {
+  const std::string sample = vispack::test::head_ct_sample();
+  if (sample.empty())
+    GTEST_SKIP() << "head-ct sample not fetched (run scripts/fetch-sample-data.sh head-ct)";
+  TempDir dir("vispack-slice-z-head");
+  vph::FromCtOptions o;
+  o.seed = 2;
+  o.slices = 61;
+  o.ct_every = every;
+  o.quiet = true;
+  vph::make_phantom_from_ct(dir.path(), vph::read_ct_volume(sample), o);
+  const vp::Config config = vp::load_config(dir / "config.json");
+  ASSERT_EQ(vp::list_slices(*config.ct).size(), std::size_t(60 / every + 1));
+  vp::RunOptions run;
+  run.to = "labels";
+  run.quiet = true;
+  vp::run_pipeline(config, run);
+  const vph::Score s = vph::score_work(dir / "truth", config.work_dir);
+  std::printf(
+      "head CT %d:1: drift over the body rms %.3f px (max %.3f); jumps %d/%d, %d false; "
+      "mask stack IoU %.4f, min %.4f; labels %.4f\n",
+      every, s.drift.over_body_rms_px, s.drift.over_body_max_px, s.jumps.found, s.jumps.true_jumps,
+      s.jumps.false_jumps, s.mask.stack_iou, s.mask.min_body_iou, s.labels.overall);
+  EXPECT_LE(s.drift.over_body_rms_px, 0.5);
+  EXPECT_EQ(s.jumps.found, 1);
+  EXPECT_LE(s.jumps.false_jumps, 3);
+  EXPECT_GE(s.mask.stack_iou, 0.98);
+  EXPECT_GE(s.mask.min_body_iou, 0.95) << "slice " << s.mask.min_body_slice;
+  EXPECT_GE(s.labels.overall, 0.995);
+}
+
+}  // namespace
+
+TEST(SliceZ, HeadCtCaseWithColourThreeTimesFinerThanTheCt) {
+  head_ct_case(3);
+}
+TEST(SliceZ, HeadCtCaseWithColourFiveTimesFinerThanTheCt) {
+  head_ct_case(5);
 }
