@@ -2,12 +2,14 @@
 // the colour and CT rebuilt from the inputs, a slice's intermediates, the body bounds. Apart from
 // the paths and stack listing of work_layout.cpp, so that a tool that reads no image
 // (vispack-merge) links no image library.
+#include <algorithm>
 #include <filesystem>
 
 #include <opencv2/imgproc.hpp>
 
 #include "vispack/common/error.h"
 #include "vispack/pipeline/mask.h"
+#include "vispack/pipeline/outline.h"
 #include "vispack/pipeline/register/ct_anchor.h"
 #include "vispack/pipeline/slice_io.h"
 #include "vispack/pipeline/slice_z.h"
@@ -78,13 +80,23 @@ cv::Mat ct_hu_at_colour_slice(const Config& config, const std::vector<SliceFile>
   return blended;
 }
 
-CtSlice read_ct_slice(const Config& config, const StackInputs& inputs, int index) {
+CtSlice read_ct_slice(const Config& config, const StackInputs& inputs, int index, bool for_mask) {
   CtSlice ct;
   if (!config.ct) return ct;
   const CtAtZ at = ct_at_colour_slice(config, int(inputs.ct.size()), index);
   if (!at.inside()) return ct;
   ct.path = inputs.ct[std::size_t(at.nearest())].path;
   ct.hu = ct_hu_at_colour_slice(config, inputs.ct, index);
+  if (for_mask && !at.exact()) {
+    const double level = mask_edge_level_hu(config.mask.hu_threshold);
+    const cv::Mat below =
+        ct_body_mask(read_ct_hu(*config.ct, inputs.ct[std::size_t(at.below)].path), level);
+    const cv::Mat above =
+        ct_body_mask(read_ct_hu(*config.ct, inputs.ct[std::size_t(at.above)].path), level);
+    const int n_below = cv::countNonZero(below), n_above = cv::countNonZero(above);
+    ct.body_ends = n_below == 0 || n_above == 0 ||
+                   cv::countNonZero(below & above) < 0.5 * std::min(n_below, n_above);
+  }
   const Similarity c =
       inputs.transforms.ct_to_rgb ? *inputs.transforms.ct_to_rgb : defined_ct_to_rgb(config);
   ct.out_to_ct = output_to_ct(c, inputs.transforms.centre(), image_centre(ct.hu.size()));

@@ -78,7 +78,10 @@ bool MaskStageJob::up_to_date(int k) const {
 cv::Mat MaskStageJob::compute(int k, const cv::Mat& rgb, const CtSlice& ct, cv::Mat* ct16) {
   const std::string in = input_fingerprint(k);
   const std::vector<std::string> outs = outputs(k);
-  const bool has_ct = !ct.hu.empty();
+  // At a body's tip between two CT slices the colour alone (CtSlice::body_ends); a black colour
+  // slice has no colour: the CT's blend there.
+  const bool tip = ct.body_ends && !inputs_.transforms.slices[std::size_t(k)].black;
+  const bool has_ct = !ct.hu.empty() && !tip;
   const bool write_ct = outs.size() > 2;
   // A CT copy from an earlier run with work.write_ct must not outlive the slice it shows.
   if (!write_ct) {
@@ -91,7 +94,7 @@ cv::Mat MaskStageJob::compute(int k, const cv::Mat& rgb, const CtSlice& ct, cv::
     bytes += ct_hu.total() * 2;
   } else {
     ++colour_only_;
-    colour_only_slice_[std::size_t(k - run_.range().first)] = 1;
+    colour_only_slice_[std::size_t(k - run_.range().first)] = tip ? 2 : 1;
   }
   const auto t0 = std::chrono::steady_clock::now();
   // A black (lost) colour slice has no colour to refine with: its mask is the CT's alone.
@@ -134,10 +137,14 @@ StageResult MaskStageJob::finish() {
   run_.set_quality("colour_only_slices", colour_only_.load());
   if (config_.ct) {
     // Slices of this run whose z lies outside the CT's z range: no CT, a colour-only mask.
-    std::vector<int> outside;
-    for (int i = 0; i < range.size(); ++i)
-      if (colour_only_slice_[std::size_t(i)]) outside.push_back(range.first + i);
+    std::vector<int> outside, tips;
+    for (int i = 0; i < range.size(); ++i) {
+      if (colour_only_slice_[std::size_t(i)] == 1) outside.push_back(range.first + i);
+      if (colour_only_slice_[std::size_t(i)] == 2) tips.push_back(range.first + i);
+    }
     run_.set_quality("outside_ct_slices", outside);
+    // Between two CT slices that do not show one body (a body's tip): colour-only masks.
+    run_.set_quality("body_tip_slices", tips);
   }
   if (gel_count_ > 0)
     run_.set_quality("mean_gel_colour", {gel_sum_[0] / gel_count_, gel_sum_[1] / gel_count_,
@@ -161,7 +168,7 @@ StageResult run_mask_stage(const Config& config, const StageOptions& options) {
       return;
     }
     const cv::Mat rgb = registered_colour(config, inputs, k);
-    job.compute(k, rgb, read_ct_slice(config, inputs, k));
+    job.compute(k, rgb, read_ct_slice(config, inputs, k, /*for_mask=*/true));
   });
   return job.finish();
 }

@@ -56,7 +56,8 @@ class MaskStageJob {
   std::vector<double> coverage_;  // per slice of the range, -1 = not computed
   std::atomic<long long> compute_ns_{0};
   std::atomic<int> colour_only_{0};
-  // Per slice of the range: 1 = computed without CT (outside the CT's z range, slice_z.h).
+  // Per slice of the range: computed without CT: 1 = outside the CT's z range (slice_z.h),
+  // 2 = at a body's tip between two CT slices (CtSlice::body_ends).
   std::vector<char> colour_only_slice_;
   std::mutex gel_mutex_;
   cv::Vec3d gel_sum_{0, 0, 0};

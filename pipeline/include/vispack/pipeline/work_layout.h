@@ -90,12 +90,18 @@ cv::Mat ct_hu_at_colour_slice(const Config& config, const std::vector<SliceFile>
 // The CT at output slice k's z in HU (ct_hu_at_colour_slice) and the map from output pixels to
 // its pixels (transforms.h output_to_ct with transforms.json's ct_to_rgb, else the config's
 // definition). Without CT, or when slice k lies outside the CT's z range, `hu` is empty.
+// With `for_mask`, a slice between two CT slices is also checked for `body_ends`.
 struct CtSlice {
   cv::Mat hu;
   cv::Matx23d out_to_ct{1, 0, 0, 0, 1, 0};
   std::string path;  // the CT file nearest in z; empty when none
+  // The two CT slices around this z do not show one body (ct_body_mask at the mask's edge level:
+  // one has none, or they overlap by less than half the smaller): a body's tip, which the blend
+  // loses (a third of the way for soft tissue). The mask stage takes the colour alone there.
+  bool body_ends = false;
 };
-CtSlice read_ct_slice(const Config& config, const StackInputs& inputs, int index);
+CtSlice read_ct_slice(const Config& config, const StackInputs& inputs, int index,
+                      bool for_mask = false);
 
 // The CT of output slice k on the output grid as work/mask/ct_NNNN.png stores it (CV_16UC1,
 // HU + 32768; mask.h resample_ct, encode_hu16): the one implementation the mask stage writes
