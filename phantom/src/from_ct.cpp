@@ -340,9 +340,58 @@ CtVolume read_ct_volume(const std::string& path) {
       cat(path, ": not a CT volume (expected .nrrd, a config .json, or a sample folder)"));
 }
 
+namespace {
+
+// `ct` with every − 1 slices interpolated linearly (in HU, rounded) between each two: slice u of
+// the result lies at z = u · spacing / every.
+CtVolume interpolate_along_z(const CtVolume& ct, int every) {
+  CtVolume fine;
+  fine.width = ct.width, fine.height = ct.height;
+  fine.slices = (ct.slices - 1) * every + 1;
+  fine.spacing_mm = {ct.spacing_mm[0], ct.spacing_mm[1], ct.spacing_mm[2] / every};
+  fine.source = ct.source;
+  const std::size_t plane = std::size_t(ct.width) * ct.height;
+  fine.hu.resize(plane * std::size_t(fine.slices));
+  for (int u = 0; u < fine.slices; ++u) {
+    const int j = std::min(u / every, ct.slices - 1), r = u - j * every;
+    const double w = double(r) / every;
+    const std::int16_t* a = ct.slice(j);
+    const std::int16_t* b = ct.slice(std::min(j + 1, ct.slices - 1));
+    std::int16_t* out = fine.hu.data() + plane * std::size_t(u);
+    for (std::size_t i = 0; i < plane; ++i)
+      out[i] = static_cast<std::int16_t>(std::lround((1.0 - w) * a[i] + w * b[i]));
+  }
+  return fine;
+}
+
+FromCtSummary make_from_ct(const std::string& out_dir, const CtVolume& ct,
+                           const FromCtOptions& options);
+
+}  // namespace
+
 FromCtSummary make_phantom_from_ct(const std::string& out_dir, const CtVolume& ct,
                                    const FromCtOptions& options) {
+  if (options.ct_every < 1 || options.ct_every > 10)
+    throw UsageError(cat("--ct-every ", options.ct_every, ": must be 1..10"));
+  if (options.ct_every == 1) return make_from_ct(out_dir, ct, options);
+  if (options.first >= 0 && options.first % options.ct_every != 0)
+    throw UsageError(cat("--first ", options.first, ": must be a multiple of --ct-every ",
+                         options.ct_every, " (a colour slice on a CT slice)"));
+  const CtVolume fine = interpolate_along_z(ct, options.ct_every);
+  FromCtOptions o = options;
+  if (o.first < 0) {
+    const int n = o.slices > 0 ? o.slices : fine.slices;
+    o.first = std::max(0, (fine.slices - n) / 2 / o.ct_every * o.ct_every);
+  }
+  return make_from_ct(out_dir, fine, o);
+}
+
+namespace {
+
+FromCtSummary make_from_ct(const std::string& out_dir, const CtVolume& ct,
+                           const FromCtOptions& options) {
   const auto start = std::chrono::steady_clock::now();
+  const int every = options.ct_every;  // ct: the CT interpolated along z when > 1
   if (ct.width < 8 || ct.height < 8 || ct.slices < 2)
     throw UsageError(
         cat(ct.source, ": CT of ", ct.width, "x", ct.height, "x", ct.slices, " is too small"));
@@ -597,7 +646,8 @@ FromCtSummary make_phantom_from_ct(const std::string& out_dir, const CtVolume& c
       for (int x = 0; x < g.Wct; ++x)
         ct16.at<std::uint16_t>(y, x) = static_cast<std::uint16_t>(
             std::clamp(int(src[std::size_t(y) * g.Wct + x]) + 1024, 0, 65535));
-    pipeline::write_image(ct_dir + "/" + numbered("ct", k, digits, ".png"), ct16);
+    if ((first + k) % every == 0)  // the CT's own slices only (first is a multiple of every)
+      pipeline::write_image(ct_dir + "/" + numbered("ct", k / every, digits, ".png"), ct16);
     progress.advance();
   });
   progress.finish();
@@ -653,6 +703,7 @@ FromCtSummary make_phantom_from_ct(const std::string& out_dir, const CtVolume& c
     c.pixel_spacing_mm = {ct.spacing_mm[0], ct.spacing_mm[1]};
     c.slope = 1.0;
     c.intercept = -1024.0;
+    if (every > 1) c.slice_spacing_mm = spacing[2] * every;
     config.ct = c;
     pipeline::SegSource sg;
     sg.dir = base + "/seg";
@@ -671,5 +722,7 @@ FromCtSummary make_phantom_from_ct(const std::string& out_dir, const CtVolume& c
   summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return summary;
 }
+
+}  // namespace
 
 }  // namespace vispack::phantom

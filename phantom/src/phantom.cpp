@@ -85,6 +85,9 @@ Plan make_plan(const PhantomOptions& options) {
   if (options.ct_scale < 0 || (options.ct_scale > 0 && options.ct_scale < 0.25) ||
       options.ct_scale > 16)
     throw UsageError(cat("--ct-scale ", options.ct_scale, ": must be between 0.25 and 16"));
+  for (const auto& [name, every] : {std::pair<const char*, int>{"--ct-every", options.ct_every},
+                                    {"--seg-every", options.seg_every}})
+    if (every < 1 || every > 1000) throw UsageError(cat(name, " ", every, ": must be 1..1000"));
   if (options.ct_scale > 0) {
     // CT pixels ct_scale× the colour pixel, a field of view 10 % larger than the colour frame.
     PhantomPreset& q = plan.preset;
@@ -370,11 +373,14 @@ PhantomSummary make_phantom(const std::string& out_dir, const PhantomOptions& op
     } else {
       write_image(rgb_path, rgb);
     }
-    write_image(seg_dir + "/" + numbered("seg", k, plan.digits, seg_ext), seg, 90);
+    if (k % options.seg_every == 0)
+      write_image(seg_dir + "/" + numbered("seg", k / options.seg_every, plan.digits, seg_ext), seg,
+                  90);
 
-    // CT: its own (larger) pixels, no drift, HU + 1024 stored, 16-bit.
+    // CT: its own (larger) pixels, no drift, HU + 1024 stored, 16-bit; at every ct_every-th
+    // colour slice only.
     cv::Mat ct(C, C, CV_16UC1);
-    {
+    if (k % options.ct_every == 0) {
       const double th = plan.ct_rot * kPi / 180.0, cs = std::cos(th), sn = std::sin(th);
       const double s = plan.ct_scale;
       Random noise(mix64(options.seed ^ (0x2545f4914f6cdd1dull * std::uint64_t(k + 1))));
@@ -391,8 +397,8 @@ PhantomSummary make_phantom(const std::string& out_dir, const PhantomOptions& op
           row[u] = static_cast<std::uint16_t>(std::clamp(std::lround(hu + 1024.0), 0L, 4095L));
         }
       }
+      write_image(ct_dir + "/" + numbered("ct", k / options.ct_every, plan.digits, ".png"), ct);
     }
-    write_image(ct_dir + "/" + numbered("ct", k, plan.digits, ".png"), ct);
     progress.advance();
   });
   progress.finish();
@@ -463,6 +469,7 @@ PhantomSummary make_phantom(const std::string& out_dir, const PhantomOptions& op
     ct.pixel_spacing_mm = {p.ct_pixel_mm, p.ct_pixel_mm};
     ct.slope = 1.0;
     ct.intercept = -1024.0;
+    if (options.ct_every > 1) ct.slice_spacing_mm = options.ct_every * p.slice_mm;
     config.ct = ct;
     pipeline::SegSource seg;
     seg.dir = base + "/seg";
@@ -471,6 +478,7 @@ PhantomSummary make_phantom(const std::string& out_dir, const PhantomOptions& op
     seg.mode = "colour";
     seg.tolerance = options.seg_jpeg ? 48 : 24;
     seg.strict = false;
+    if (options.seg_every > 1) seg.slice_spacing_mm = options.seg_every * p.slice_mm;
     config.seg = seg;
     config.registration.method = "phase+ecc";
     config.registration.ecc_scale = 0.5;
@@ -486,8 +494,10 @@ PhantomSummary make_phantom(const std::string& out_dir, const PhantomOptions& op
   std::vector<std::string> keep_rgb, keep_seg, keep_ct;
   for (int k = 0; k < N; ++k) {
     keep_rgb.push_back(numbered("rgb", k, plan.digits, rgb_ext));
-    keep_seg.push_back(numbered("seg", k, plan.digits, seg_ext));
-    keep_ct.push_back(numbered("ct", k, plan.digits, ".png"));
+    if (k % options.seg_every == 0)
+      keep_seg.push_back(numbered("seg", k / options.seg_every, plan.digits, seg_ext));
+    if (k % options.ct_every == 0)
+      keep_ct.push_back(numbered("ct", k / options.ct_every, plan.digits, ".png"));
   }
   remove_stale(rgb_dir, std::regex("rgb_[0-9]+\\.(png|raw)"), keep_rgb);
   remove_stale(seg_dir, std::regex("seg_[0-9]+\\.(png|jpg)"), keep_seg);

@@ -65,6 +65,17 @@ double transform_error_px(const SliceRigid& a, const SliceRigid& b, int width, i
   return worst;
 }
 
+double transform_error_over_px(const SliceRigid& a, const SliceRigid& b, int width, int height,
+                               const std::vector<cv::Point>& points) {
+  const double cx = (width - 1) * 0.5, cy = (height - 1) * 0.5;
+  double worst = 0;
+  for (const auto& p : points) {
+    const cv::Point2d pa = apply(a, p.x, p.y, cx, cy), pb = apply(b, p.x, p.y, cx, cy);
+    worst = std::max(worst, std::hypot(pa.x - pb.x, pa.y - pb.y));
+  }
+  return worst;
+}
+
 SliceRigid relative_to(const SliceRigid& t_k, const SliceRigid& t_r, int, int) {
   const double rot = t_k.rotation_deg - t_r.rotation_deg;
   const double th = rot * kPi / 180.0, cs = std::cos(th), sn = std::sin(th);
@@ -259,20 +270,44 @@ Score score_work(const std::string& truth_dir, const std::string& work_dir) {
   const NrrdVolume truth_mask = read_nrrd(truth_dir + "/mask.nrrd");
   {
     const std::size_t plane = std::size_t(truth_mask.dims[0]) * truth_mask.dims[1];
-    double sum2 = 0;
+    double sum2 = 0, sum2_over = 0;
     s.drift.body_max_px = 0;
+    s.drift.over_body_max_px = 0;
+    std::vector<double> over_body(std::size_t(N), kNaN);
     for (int k = 0; k < N && k < truth_mask.dims[2]; ++k) {
       const double e = s.drift.error_px[std::size_t(k)];
       if (!std::isfinite(e)) continue;
       const std::uint8_t* m = truth_mask.as<std::uint8_t>() + plane * std::size_t(k);
       const auto body =
           std::size_t(std::count_if(m, m + plane, [](std::uint8_t v) { return v != 0; }));
+      if (body > 0) {
+        // Over the truth body: a rigid motion's largest displacement over a set lies on its
+        // convex hull.
+        const cv::Mat mk(truth_mask.dims[1], truth_mask.dims[0], CV_8UC1,
+                         const_cast<std::uint8_t*>(m));
+        std::vector<cv::Point> pixels, hull;
+        cv::findNonZero(mk, pixels);
+        cv::convexHull(pixels, hull);
+        const double b =
+            transform_error_over_px(est.slices[std::size_t(k)].t, truth.slices[std::size_t(k)].t,
+                                    truth.width, truth.height, hull);
+        over_body[std::size_t(k)] = b;
+        sum2_over += b * b, ++s.drift.over_body_slices;
+        if (b > s.drift.over_body_max_px) {
+          s.drift.over_body_max_px = b;
+          s.drift.over_body_max_slice = k;
+        }
+      }
       if (double(body) < 0.01 * double(plane)) continue;
       sum2 += e * e, ++s.drift.body_slices;
       s.drift.body_max_px = std::max(s.drift.body_max_px, e);
     }
     s.drift.body_rms_px = s.drift.body_slices ? std::sqrt(sum2 / s.drift.body_slices) : kNaN;
     if (!s.drift.body_slices) s.drift.body_max_px = kNaN;
+    s.drift.over_body_px = std::move(over_body);
+    s.drift.over_body_rms_px =
+        s.drift.over_body_slices ? std::sqrt(sum2_over / s.drift.over_body_slices) : kNaN;
+    if (!s.drift.over_body_slices) s.drift.over_body_max_px = kNaN;
   }
   std::vector<cv::Mat> masks, labels;
   if (read_stack(work_dir + "/mask", "mask", masks)) {
@@ -303,6 +338,11 @@ json to_json(const Score& s) {
                   {"body_rms_px", nan_to_null(s.drift.body_rms_px)},
                   {"body_max_px", nan_to_null(s.drift.body_max_px)},
                   {"body_slices", s.drift.body_slices},
+                  {"over_body_rms_px", nan_to_null(s.drift.over_body_rms_px)},
+                  {"over_body_max_px", nan_to_null(s.drift.over_body_max_px)},
+                  {"over_body_max_slice", s.drift.over_body_max_slice},
+                  {"over_body_slices", s.drift.over_body_slices},
+                  {"over_body_per_slice_px", vector_json(s.drift.over_body_px)},
                   {"per_slice_px", vector_json(s.drift.error_px)}};
   out["jumps"] = {{"true", s.jumps.true_jumps},
                   {"found", s.jumps.found},

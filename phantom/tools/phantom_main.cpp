@@ -16,7 +16,7 @@ int main(int argc, char** argv) {
         "--out DIR [--preset NAME | --from-ct CT [--first K] [--margin PX]] [--ct-scale F] [--seed "
         "N] [--slices N] "
         "[--rgb-raw] [--seg-jpeg] [--defects|--no-defects] [--fiducials|--no-fiducials] "
-        "[--no-drift] [--no-jump] [--threads N] [--quiet]",
+        "[--ct-every N] [--seg-every N] [--no-drift] [--no-jump] [--threads N] [--quiet]",
         "Writes a synthetic Visible-Human-style slice folder (rgb/, ct/, seg/, palette.json,\n"
         "config.json) with ground truth in truth/ (NRRD volumes and transforms.json).\n"
         "--from-ct synthesises the colour slices from a real CT (a .nrrd, a config.json, or a\n"
@@ -32,6 +32,13 @@ int main(int argc, char** argv) {
     const auto ct_scale = args.option_double(
         "--ct-scale", "F",
         "CT pixel / colour pixel (--from-ct: an integer, default 2; presets: the preset's)");
+    const auto ct_every = args.option_int(
+        "--ct-every", "N",
+        "a CT slice only at every Nth colour slice (ct.slice_spacing_mm); --from-ct: the colour\n"
+        "      N times finer along z than the CT, synthesised from the CT interpolated along z");
+    const auto seg_every = args.option_int(
+        "--seg-every", "N",
+        "presets: a segmentation slice only at every Nth colour slice (seg.slice_spacing_mm)");
     const auto margin =
         args.option_int("--margin", "PX", "--from-ct: gel around the CT's field of view, px");
     const auto seed = args.option_int("--seed", "N", "random seed (default 1)");
@@ -65,6 +72,7 @@ int main(int argc, char** argv) {
 
     if (from_ct) {
       if (preset) throw vispack::UsageError("--preset and --from-ct conflict");
+      if (seg_every) throw vispack::UsageError("--seg-every applies to the presets only");
       if (options.rgb_raw || options.seg_jpeg || defects || fiducials)
         throw vispack::UsageError(
             "--rgb-raw, --seg-jpeg, --defects and --fiducials apply to the presets only");
@@ -72,6 +80,7 @@ int main(int argc, char** argv) {
       o.seed = seed_value;
       o.slices = slice_count;
       o.first = first ? static_cast<int>(std::clamp<long long>(*first, -1, 1 << 30)) : -1;
+      if (ct_every) o.ct_every = static_cast<int>(std::clamp<long long>(*ct_every, -1, 1 << 20));
       if (first && *first < 0) throw vispack::UsageError("--first must not be negative");
       if (ct_scale && *ct_scale != std::floor(*ct_scale))
         throw vispack::UsageError("--ct-scale must be an integer with --from-ct");
@@ -93,6 +102,10 @@ int main(int argc, char** argv) {
       return 0;
     }
     if (first || margin) throw vispack::UsageError("--first and --margin need --from-ct");
+    if (ct_every)
+      options.ct_every = static_cast<int>(std::clamp<long long>(*ct_every, -1, 1 << 20));
+    if (seg_every)
+      options.seg_every = static_cast<int>(std::clamp<long long>(*seg_every, -1, 1 << 20));
     if (ct_scale) options.ct_scale = *ct_scale;
     options.preset = preset.value_or("small");
     options.seed = seed_value;

@@ -12,7 +12,8 @@ int main(int argc, char** argv) {
         "--truth DIR --work DIR [--json]",
         "Scores a pipeline work folder (register/transforms.json, mask/, labels/) against\n"
         "a phantom's truth folder: drift error per slice (largest displacement of the\n"
-        "corners and centre, px), jumps found/false, mask IoU, labels away from edges.");
+        "corners and centre, px; and over the truth body, where the error shows), jumps\n"
+        "found/false, mask IoU, labels away from edges.");
     const auto truth = args.option("--truth", "DIR", "the phantom's truth/ folder");
     const auto work = args.option("--work", "DIR", "the pipeline's work folder (config work_dir)");
     const bool as_json = args.flag("--json", "print the full score as JSON");
@@ -35,6 +36,10 @@ int main(int argc, char** argv) {
         s.drift.relative_max_px);
     std::printf("drift over the %d slices with body >= 1 %%: rms %.3f px, max %.3f px\n",
                 s.drift.body_slices, s.drift.body_rms_px, s.drift.body_max_px);
+    std::printf(
+        "drift over the truth body (%d slices with body): rms %.3f px, max %.3f px (slice %d)\n",
+        s.drift.over_body_slices, s.drift.over_body_rms_px, s.drift.over_body_max_px,
+        s.drift.over_body_max_slice);
     std::printf("jumps: %d of %d found, %d false\n", s.jumps.found, s.jumps.true_jumps,
                 s.jumps.false_jumps);
     if (s.has_mask)

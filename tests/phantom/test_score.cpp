@@ -259,3 +259,17 @@ TEST(Score, WorkFolderFromTruthThenSpoiled) {
       << out;
   EXPECT_NE(out.find("transforms.json"), std::string::npos) << out;
 }
+
+// Drift over the body (issue 31): a rotation about the frame's centre moves a point at distance r
+// by 2r·sin(θ/2), so a small body at the centre shows little of what the corners show; a shift
+// moves every point alike; no point, no error.
+TEST(Score, DriftOverTheBodyIsTheLargestMoveOverItsPoints) {
+  const int W = 201, H = 101;  // centre (100, 50)
+  const vph::SliceRigid none{0, 0, 0}, turned{2.0, 0, 0}, shifted{0, 3, -4};
+  const double k = 2 * std::sin(1.0 * 3.14159265358979323846 / 180.0);  // 2·sin(θ/2), θ = 2°
+  const std::vector<cv::Point> near_centre = {{95, 50}, {110, 50}, {100, 45}};
+  EXPECT_NEAR(vph::transform_error_over_px(turned, none, W, H, near_centre), 10 * k, 1e-9);
+  EXPECT_NEAR(vph::transform_error_px(turned, none, W, H), std::hypot(100.0, 50.0) * k, 1e-9);
+  EXPECT_NEAR(vph::transform_error_over_px(shifted, none, W, H, near_centre), 5.0, 1e-9);
+  EXPECT_EQ(vph::transform_error_over_px(turned, none, W, H, {}), 0.0);
+}

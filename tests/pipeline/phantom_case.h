@@ -2,9 +2,11 @@
 // pipeline tests that score a stage against the phantom's truth).
 #pragma once
 
+#include <cstdlib>
 #include <filesystem>
 #include <string>
 
+#include "test_support.h"
 #include "vispack/phantom/phantom.h"
 #include "vispack/phantom/score.h"
 #include "vispack/pipeline/core/config.h"
@@ -26,6 +28,15 @@ inline pipeline::Config make_phantom_case(const std::filesystem::path& dir,
   options.quiet = true;
   phantom::make_phantom(dir, options);
   return pipeline::load_config(dir / "config.json");
+}
+
+// The head-CT sample folder ($VISPACK_SAMPLES_DIR or <source>/data/samples, then /head-ct), or ""
+// when it has not been fetched (scripts/fetch-sample-data.sh head-ct).
+inline std::string head_ct_sample() {
+  const char* env = std::getenv("VISPACK_SAMPLES_DIR");
+  const std::string sample =
+      (env && *env ? std::string(env) : source_dir() + "/data/samples") + "/head-ct";
+  return std::filesystem::exists(sample + "/.stamp") ? sample : "";
 }
 
 // Stage options for a whole, quiet, unforced run.

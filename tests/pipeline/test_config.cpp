@@ -50,15 +50,17 @@ json full_config() {
              "raw": { "width": 16, "height": 8, "channels": 3, "layout": "planar", "bits": 8,
                       "endian": "little", "header_bytes": 0 } },
     "ct": { "dir": "data/ct", "pattern": "ct_{n}.png", "pixel_spacing_mm": [0.9, 0.9],
-            "slope": 1.0, "intercept": -1024.0, "slice_offset": 0,
+            "slope": 1.0, "intercept": -1024.0, "slice_spacing_mm": 3.0, "z_offset_mm": -1.5,
             "raw": { "width": 4, "height": 4, "channels": 1, "layout": "interleaved", "bits": 16,
                      "endian": "big", "header_bytes": 10 } },
     "seg": { "dir": "data/seg", "pattern": "seg_{n}.png", "palette": "data/palette.json",
              "mode": "id", "tolerance": 24, "strict": false, "id_map": "data/id_map.json",
+             "slice_spacing_mm": 0.5, "z_offset_mm": 0.25,
              "raw": { "width": 16, "height": 8, "channels": 1, "layout": "interleaved", "bits": 16,
                       "endian": "little", "header_bytes": 0 } },
     "register": { "enabled": true, "method": "phase+ecc", "ecc_scale": 0.5, "ecc_iterations": 50,
-                  "jump_px": 6.0, "anchor": "ct", "overrides": "data/overrides.json",
+                  "jump_px": 6.0, "anchor": "ct", "ct_anchor_between": "interpolated",
+                  "overrides": "data/overrides.json",
                   "output_frame": { "rotation_deg": 1.5, "dx_px": -2, "dy_px": 3 } },
     "mask": { "hu_threshold": -400, "opening_px": 1, "refine_gel": true, "gel_colour": [30, 60, 200],
               "gel_distance": 40, "min_part_mm2": 5 },
@@ -407,7 +409,8 @@ TEST(Config, SchemaAndLoaderAgreeKeyForKey) {
     EXPECT_NE(schema_check(schema, schema, j, "$"), "") << key;
   }
   // Sample configs shipped in configs/ validate against the schema too.
-  for (const char* name : {"phantom-small.json", "vhp-male.template.json"}) {
+  for (const char* name : {"phantom-small.json", "vhp-male.template.json",
+                           "vhp-female.template.json", "vkh-head.template.json"}) {
     json sample = json::parse(read_file(std::string(VISPACK_SOURCE_DIR) + "/configs/" + name),
                               nullptr, true, true);
     EXPECT_EQ(schema_check(schema, schema, sample, "$"), "") << name;

@@ -38,13 +38,16 @@ void expect_same(const vp::Config& a, const vp::Config& b) {
     EXPECT_EQ(a.ct->pixel_spacing_mm, b.ct->pixel_spacing_mm);
     EXPECT_EQ(a.ct->slope, b.ct->slope);
     EXPECT_EQ(a.ct->intercept, b.ct->intercept);
-    EXPECT_EQ(a.ct->slice_offset, b.ct->slice_offset);
+    EXPECT_EQ(a.ct->slice_spacing_mm, b.ct->slice_spacing_mm);
+    EXPECT_EQ(a.ct->z_offset_mm, b.ct->z_offset_mm);
   }
   ASSERT_EQ(a.seg.has_value(), b.seg.has_value());
   if (a.seg) {
     EXPECT_EQ(a.seg->palette, b.seg->palette);
     EXPECT_EQ(a.seg->tolerance, b.seg->tolerance);
     EXPECT_EQ(a.seg->mode, b.seg->mode);
+    EXPECT_EQ(a.seg->slice_spacing_mm, b.seg->slice_spacing_mm);
+    EXPECT_EQ(a.seg->z_offset_mm, b.seg->z_offset_mm);
   }
   const auto &ra = a.registration, &rb = b.registration;
   EXPECT_EQ(ra.method, rb.method);
@@ -86,7 +89,10 @@ TEST(ConfigWriter, RoundTripsThroughTheLoader) {
   a.pack.crop_margin_px = 12;
   a.work.write_ct = true;
   a.work.overlay_max_px = 0;
-  a.ct->slice_offset = 0;
+  a.ct->slice_spacing_mm = 3.0;
+  a.ct->z_offset_mm = -2.5;
+  a.seg->slice_spacing_mm = 2.0;
+  a.seg->z_offset_mm = 1.0;
   vp::write_config(dir / "again.json", a);
   const vp::Config b = vp::load_config(dir / "again.json");
   expect_same(a, b);

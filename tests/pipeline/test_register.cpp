@@ -377,12 +377,9 @@ TEST(RegisterStage, AnatomyVhpPresetAtRealSize) {
 // body covers ≥ 1 % of the frame), the jump found, no false jump. Skips without the sample
 // (scripts/fetch-sample-data.sh head-ct).
 TEST(RegisterStage, HeadCtCaseAgainstTruth) {
-  const char* env = std::getenv("VISPACK_SAMPLES_DIR");
-  const std::string sample =
-      (env && *env ? std::string(env) : vispack::test::source_dir() + "/data/samples") + "/head-ct";
-  if (!std::filesystem::exists(sample + "/.stamp"))
-    GTEST_SKIP() << "head-ct sample not found in " << sample
-                 << " (run scripts/fetch-sample-data.sh head-ct)";
+  const std::string sample = vispack::test::head_ct_sample();
+  if (sample.empty())
+    GTEST_SKIP() << "head-ct sample not fetched (run scripts/fetch-sample-data.sh head-ct)";
   TempDir dir("vispack-register-head");
   vph::FromCtOptions o;
   o.seed = 2;

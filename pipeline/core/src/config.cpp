@@ -228,14 +228,18 @@ const std::vector<std::pair<std::string, std::vector<std::string>>>& known_keys(
        {"name", "work_dir", "output", "vdb_output", "spacing_mm", "rgb", "ct", "seg", "register",
         "mask", "pack", "work", "vdb"}},
       {"rgb", {"dir", "pattern", "raw"}},
-      {"ct", {"dir", "pattern", "raw", "pixel_spacing_mm", "slope", "intercept", "slice_offset"}},
-      {"seg", {"dir", "pattern", "raw", "palette", "mode", "tolerance", "strict", "id_map"}},
+      {"ct",
+       {"dir", "pattern", "raw", "pixel_spacing_mm", "slope", "intercept", "slice_spacing_mm",
+        "z_offset_mm"}},
+      {"seg",
+       {"dir", "pattern", "raw", "palette", "mode", "tolerance", "strict", "id_map",
+        "slice_spacing_mm", "z_offset_mm"}},
       {"rgb.raw", {"width", "height", "channels", "layout", "bits", "endian", "header_bytes"}},
       {"ct.raw", {"width", "height", "channels", "layout", "bits", "endian", "header_bytes"}},
       {"seg.raw", {"width", "height", "channels", "layout", "bits", "endian", "header_bytes"}},
       {"register",
        {"enabled", "method", "ecc_scale", "ecc_iterations", "jump_px", "output_frame", "anchor",
-        "overrides"}},
+        "ct_anchor_between", "overrides"}},
       {"register.output_frame", {"rotation_deg", "dx_px", "dy_px"}},
       {"mask",
        {"hu_threshold", "opening_px", "refine_gel", "gel_colour", "gel_distance", "min_part_mm2"}},
@@ -316,6 +320,14 @@ Config load_config(const std::string& path) {
   }
   const std::string& file = config.path;
   const std::string base = fs::path(config.path).parent_path().string();
+  // Issue 31: CT slices are placed along z by ct.slice_spacing_mm and ct.z_offset_mm, one way to
+  // say one thing; the index offset that came before them is named with its replacement.
+  if (config.raw_json.is_object() && config.raw_json.contains("ct") &&
+      config.raw_json["ct"].is_object() && config.raw_json["ct"].contains("slice_offset"))
+    throw ConfigError(cat(file,
+                          ": ct.slice_offset: replaced by ct.z_offset_mm (CT slice k + "
+                          "slice_offset on colour slice k is z_offset_mm = -slice_offset x "
+                          "ct.slice_spacing_mm)"));
   check_unknown_keys(config.raw_json, "", file);
   Section top(config.raw_json, "", file);
 
@@ -339,7 +351,8 @@ Config load_config(const std::string& path) {
     ct.slope = s.number("slope", 1.0, -1e6, 1e6);
     if (ct.slope == 0) s.fail("slope", "must not be 0");
     ct.intercept = s.number("intercept", -1024.0, -1e6, 1e6);
-    ct.slice_offset = int(s.integer("slice_offset", 0, -1000000, 1000000));
+    ct.slice_spacing_mm = s.number("slice_spacing_mm", config.spacing_mm[2], 0.0, 1e6, true);
+    ct.z_offset_mm = s.number("z_offset_mm", 0.0, -1e9, 1e9);
     s.finish();
     config.ct = ct;
   } else {
@@ -360,6 +373,14 @@ Config load_config(const std::string& path) {
     }
     seg.tolerance = s.number("tolerance", 24.0, 0.0, 442.0);
     seg.strict = s.boolean("strict", false);
+    if (s.has("slice_spacing_mm")) {
+      seg.slice_spacing_mm = s.number("slice_spacing_mm", std::nullopt, 0.0, 1e6, true);
+      seg.z_offset_mm = s.number("z_offset_mm", 0.0, -1e9, 1e9);
+    } else if (s.has("z_offset_mm")) {
+      s.fail("z_offset_mm",
+             "needs seg.slice_spacing_mm (without it segmentation slices are matched to colour "
+             "slices by file number)");
+    }
     if (s.has("id_map")) {
       if (seg.mode != "id") s.fail("id_map", "only allowed in mode \"id\"");
       seg.id_map = resolve(base, s.string("id_map", std::nullopt));
@@ -390,6 +411,7 @@ Config load_config(const std::string& path) {
       s.find("output_frame");
     }
     r.anchor = s.choice("anchor", {"auto", "ct", "fiducials", "none"}, "auto");
+    r.ct_anchor_between = s.choice("ct_anchor_between", {"nearest", "interpolated"}, "nearest");
     if (r.anchor == "ct" && !config.ct)
       s.fail("anchor", "\"ct\" needs a \"ct\" section (CT slices)");
     if (s.has("overrides")) {
@@ -529,7 +551,8 @@ json config_to_json(const Config& config, const std::string& base_dir) {
     c["pixel_spacing_mm"] = ct.pixel_spacing_mm;
     c["slope"] = ct.slope;
     c["intercept"] = ct.intercept;
-    c["slice_offset"] = ct.slice_offset;
+    c["slice_spacing_mm"] = ct.slice_spacing_mm.value_or(config.spacing_mm[2]);
+    c["z_offset_mm"] = ct.z_offset_mm;
     out["ct"] = c;
   }
   if (config.seg) {
@@ -540,6 +563,10 @@ json config_to_json(const Config& config, const std::string& base_dir) {
     s["tolerance"] = seg.tolerance;
     s["strict"] = seg.strict;
     if (!seg.id_map.empty()) s["id_map"] = relative_to(seg.id_map, base);
+    if (seg.slice_spacing_mm) {
+      s["slice_spacing_mm"] = *seg.slice_spacing_mm;
+      s["z_offset_mm"] = seg.z_offset_mm;
+    }
     out["seg"] = s;
   }
   const RegisterOptions& r = config.registration;
@@ -552,7 +579,8 @@ json config_to_json(const Config& config, const std::string& base_dir) {
                       {{"rotation_deg", r.output_frame.rotation_deg},
                        {"dx_px", r.output_frame.dx_px},
                        {"dy_px", r.output_frame.dy_px}}},
-                     {"anchor", r.anchor}};
+                     {"anchor", r.anchor},
+                     {"ct_anchor_between", r.ct_anchor_between}};
   if (!r.overrides.empty()) out["register"]["overrides"] = relative_to(r.overrides, base);
   const MaskOptions& m = config.mask;
   json mask = {{"hu_threshold", m.hu_threshold},

@@ -19,7 +19,13 @@ std::vector<SliceFile> list_slices(const SliceSource& source) {
         cat("pattern \"", pattern, "\" for folder ", source.dir, " must contain {n} exactly once"));
   }
   const std::string prefix = pattern.substr(0, token);
-  const std::string suffix = pattern.substr(token + 3);
+  // {a} right after {n}: one letter orders the files of one number (slice_io.h).
+  const bool lettered = pattern.compare(token + 3, 3, "{a}") == 0;
+  const std::string suffix = pattern.substr(token + (lettered ? 6 : 3));
+  if (suffix.find("{a}") != std::string::npos || prefix.find("{a}") != std::string::npos) {
+    throw ConfigError(cat("pattern \"", pattern, "\" for folder ", source.dir,
+                          ": {a} (a letter) must follow {n} directly"));
+  }
   std::error_code ec;
   if (!fs::is_directory(source.dir, ec)) {
     throw ConfigError(
@@ -36,8 +42,20 @@ std::vector<SliceFile> list_slices(const SliceSource& source) {
     if (name.size() <= prefix.size() + suffix.size()) continue;
     if (name.compare(0, prefix.size(), prefix) != 0) continue;
     if (name.compare(name.size() - suffix.size(), suffix.size(), suffix) != 0) continue;
-    const std::string digits =
-        name.substr(prefix.size(), name.size() - prefix.size() - suffix.size());
+    std::string digits = name.substr(prefix.size(), name.size() - prefix.size() - suffix.size());
+    int letter = -1;
+    if (lettered) {
+      if (digits.size() < 2) continue;
+      const char c = digits.back();
+      if (c >= 'a' && c <= 'z') {
+        letter = c - 'a';
+      } else if (c >= 'A' && c <= 'Z') {
+        letter = c - 'A';
+      } else {
+        continue;
+      }
+      digits.pop_back();
+    }
     if (!std::all_of(digits.begin(), digits.end(), [](char c) { return c >= '0' && c <= '9'; })) {
       continue;
     }
@@ -48,18 +66,21 @@ std::vector<SliceFile> list_slices(const SliceSource& source) {
     }
     std::error_code type_ec;
     if (it->is_directory(type_ec)) continue;
-    files.push_back({std::stoi(significant), (fs::path(source.dir) / name).string()});
+    files.push_back({std::stoi(significant), (fs::path(source.dir) / name).string(), letter});
   }
   if (files.empty()) {
     throw ConfigError(cat("no file in ", source.dir, " matches the pattern \"", pattern, "\""));
   }
   std::sort(files.begin(), files.end(), [](const SliceFile& a, const SliceFile& b) {
-    return a.number != b.number ? a.number < b.number : a.path < b.path;
+    if (a.number != b.number) return a.number < b.number;
+    return a.letter != b.letter ? a.letter < b.letter : a.path < b.path;
   });
   for (std::size_t i = 1; i < files.size(); ++i) {
-    if (files[i].number == files[i - 1].number) {
-      throw ConfigError(cat("slice number ", files[i].number, " appears twice in ", source.dir,
-                            ": ", fs::path(files[i - 1].path).filename().string(), " and ",
+    if (files[i].number == files[i - 1].number && files[i].letter == files[i - 1].letter) {
+      throw ConfigError(cat("slice number ", files[i].number,
+                            files[i].letter >= 0 ? std::string(1, char('a' + files[i].letter)) : "",
+                            " appears twice in ", source.dir, ": ",
+                            fs::path(files[i - 1].path).filename().string(), " and ",
                             fs::path(files[i].path).filename().string()));
     }
   }

@@ -7,6 +7,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "vispack/common/error.h"
+#include "vispack/pipeline/core/slice_z.h"
 
 namespace vispack::pipeline {
 
@@ -51,28 +52,41 @@ std::string labels_path(const Config& config, int index) {
   return slice_output_path(config, "labels", "labels", index);
 }
 
-std::vector<SliceFile> stack_slices(const Config& config) {
-  std::vector<SliceFile> files = list_slices(config.rgb);
-  if (config.ct) {
-    // CT slice k + slice_offset lies on colour slice k: matched by position, so a CT slice
-    // missing inside the CT stack would shift every later one (issue 7). The step is the
-    // smallest difference between consecutive CT numbers (1 for ct_0000, ct_0001, ...).
-    const std::vector<SliceFile> ct = list_slices(*config.ct);
-    int step = 0;
-    for (std::size_t i = 1; i < ct.size(); ++i) {
-      const int d = ct[i].number - ct[i - 1].number;
-      if (step == 0 || d < step) step = d;
-    }
-    for (std::size_t i = 1; i < ct.size(); ++i) {
-      if (ct[i].number - ct[i - 1].number > step) {
-        throw InputError(cat(config.ct->dir, ": CT slice ", ct[i - 1].number + step,
-                             " is missing (", fs::path(ct[i - 1].path).filename().string(),
-                             " is followed by ", fs::path(ct[i].path).filename().string(),
-                             "); CT slices are matched to colour slices by position"));
-      }
+void check_no_missing_slice(const SliceSource& source, const std::vector<SliceFile>& files,
+                            const std::string& what) {
+  int step = 0;
+  for (std::size_t i = 1; i < files.size(); ++i) {
+    const int d = files[i].number - files[i - 1].number;
+    if (step == 0 || d < step) step = d;
+  }
+  for (std::size_t i = 1; i < files.size(); ++i) {
+    if (files[i].number - files[i - 1].number > step) {
+      throw InputError(cat(source.dir, ": ", what, " slice ", files[i - 1].number + step,
+                           " is missing (", fs::path(files[i - 1].path).filename().string(),
+                           " is followed by ", fs::path(files[i].path).filename().string(), "); ",
+                           what, " slices are placed along z by their position in the ", what,
+                           " stack"));
     }
   }
+}
+
+std::vector<SliceFile> stack_slices(const Config& config) {
+  std::vector<SliceFile> files = list_slices(config.rgb);
+  // CT slice j lies at z = ct.z_offset_mm + j · ct.slice_spacing_mm (slice_z.h): placed by its
+  // position in the CT stack, so a CT slice missing inside the CT stack would shift every later
+  // one (issue 7).
+  if (config.ct) check_no_missing_slice(*config.ct, list_slices(*config.ct), "CT");
+  // Issue 31: never a silent mispairing along z (ConfigError when an input covers less than half
+  // of the colour stack).
+  z_extent_warnings(config, int(files.size()));
   return files;
+}
+
+std::vector<std::string> z_extent_warnings(const Config& config, int colour_count) {
+  const int ct_count = config.ct ? int(list_slices(*config.ct).size()) : 0;
+  const int seg_count =
+      config.seg && config.seg->slice_spacing_mm ? int(list_slices(*config.seg).size()) : 0;
+  return check_z_extents(config, colour_count, ct_count, seg_count);
 }
 
 StackTransforms read_stack_transforms(const Config& config, int slice_count) {

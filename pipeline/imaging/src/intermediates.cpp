@@ -2,15 +2,18 @@
 // the colour and CT rebuilt from the inputs, a slice's intermediates, the body bounds. Apart from
 // the paths and stack listing of work_layout.cpp, so that a tool that reads no image
 // (vispack-merge) links no image library.
+#include <algorithm>
 #include <filesystem>
 
 #include <opencv2/imgproc.hpp>
 
 #include "vispack/common/error.h"
 #include "vispack/pipeline/core/output_frame.h"
+#include "vispack/pipeline/core/slice_z.h"
 #include "vispack/pipeline/core/work_layout.h"
 #include "vispack/pipeline/imaging/ct_resample.h"
 #include "vispack/pipeline/imaging/intermediates.h"
+#include "vispack/pipeline/imaging/outline.h"
 #include "vispack/pipeline/imaging/slice_io.h"
 
 namespace vispack::pipeline {
@@ -51,15 +54,53 @@ cv::Mat registered_colour(const Config& config, const StackInputs& inputs, int i
   return registered;
 }
 
-CtSlice read_ct_slice(const Config& config, const StackInputs& inputs, int index) {
+cv::Mat read_ct_hu(const CtSource& ct, const std::string& path) {
+  cv::Mat raw = read_slice(path, ct.raw);
+  if (raw.channels() != 1) throw InputError(cat(path, ": CT slice must be single-channel"));
+  cv::Mat hu;
+  raw.convertTo(hu, CV_32F, ct.slope, ct.intercept);
+  return hu;
+}
+
+cv::Mat ct_hu_at_colour_slice(const Config& config, const std::vector<SliceFile>& ct_files,
+                              int colour_k) {
+  if (!config.ct) return {};
+  const CtAtZ at = ct_at_colour_slice(config, int(ct_files.size()), colour_k);
+  if (!at.inside()) return {};
+  const std::string& below = ct_files[std::size_t(at.below)].path;
+  cv::Mat hu = read_ct_hu(*config.ct, below);
+  if (at.exact()) return hu;  // on a CT slice: that slice, as read (the 1:1 case)
+  const std::string& above = ct_files[std::size_t(at.above)].path;
+  const cv::Mat hu_above = read_ct_hu(*config.ct, above);
+  if (hu_above.size() != hu.size())
+    throw InputError(cat(above, ": CT slice is ", hu_above.cols, "x", hu_above.rows, ", ", below,
+                         " is ", hu.cols, "x", hu.rows));
+  // Linear in HU along z (docs/ARCHITECTURE.md "Each input at its own z" says why).
+  cv::Mat blended;
+  cv::addWeighted(hu, 1.0 - at.w_above, hu_above, at.w_above, 0.0, blended);
+  return blended;
+}
+
+CtSlice read_ct_slice(const Config& config, const StackInputs& inputs, int index, bool for_mask) {
   CtSlice ct;
   if (!config.ct) return ct;
-  const int ct_k = index + config.ct->slice_offset;
-  if (ct_k < 0 || ct_k >= int(inputs.ct.size())) return ct;
-  ct.path = inputs.ct[std::size_t(ct_k)].path;
-  cv::Mat raw = read_slice(ct.path, config.ct->raw);
-  if (raw.channels() != 1) throw InputError(cat(ct.path, ": CT slice must be single-channel"));
-  raw.convertTo(ct.hu, CV_32F, config.ct->slope, config.ct->intercept);
+  const CtAtZ at = ct_at_colour_slice(config, int(inputs.ct.size()), index);
+  if (!at.inside()) return ct;
+  ct.path = inputs.ct[std::size_t(at.nearest())].path;
+  ct.hu = ct_hu_at_colour_slice(config, inputs.ct, index);
+  if (for_mask && !at.exact()) {
+    const double level = mask_edge_level_hu(config.mask.hu_threshold);
+    // The part rule's minimum area (mask.min_part_mm2) in CT pixels.
+    const double min_part_ct_px = config.mask.min_part_mm2 /
+                                  (config.ct->pixel_spacing_mm[0] * config.ct->pixel_spacing_mm[1]);
+    const cv::Mat below = ct_body_mask(
+        read_ct_hu(*config.ct, inputs.ct[std::size_t(at.below)].path), level, min_part_ct_px);
+    const cv::Mat above = ct_body_mask(
+        read_ct_hu(*config.ct, inputs.ct[std::size_t(at.above)].path), level, min_part_ct_px);
+    const int n_below = cv::countNonZero(below), n_above = cv::countNonZero(above);
+    ct.body_ends = n_below == 0 || n_above == 0 ||
+                   cv::countNonZero(below & above) < 0.5 * std::min(n_below, n_above);
+  }
   const Similarity c =
       inputs.transforms.ct_to_rgb ? *inputs.transforms.ct_to_rgb : defined_ct_to_rgb(config);
   ct.out_to_ct = output_to_ct(c, inputs.transforms.centre(), image_centre(ct.hu.size()));

@@ -7,6 +7,7 @@
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
 #include "vispack/common/parallel.h"
+#include "vispack/pipeline/core/slice_z.h"
 #include "vispack/pipeline/core/work_layout.h"
 #include "vispack/pipeline/imaging/opencv_threads.h"
 #include "vispack/pipeline/imaging/slice_io.h"
@@ -23,8 +24,25 @@ LabelsStageJob::LabelsStageJob(const Config& config, const StageOptions& options
     throw ConfigError(cat(config.path, ": seg: not configured (no segmentation to map)"));
   const SegSource& seg = *config.seg;
   stack_ = stack_slices(config);
-  for (const auto& f : list_slices(seg))
-    seg_by_number_[f.number] = f.path;
+  const int n = int(stack_.size());
+  if (seg.slice_spacing_mm) {
+    // Each colour slice takes the segmentation slice nearest in z (slice_z.h, issue 31).
+    seg_files_ = list_slices(seg);
+    check_no_missing_slice(seg, seg_files_, "segmentation");
+  } else {
+    for (const auto& f : list_slices(seg))
+      seg_by_number_[{f.number, f.letter}] = f.path;
+    // Matched by file number: a segmentation of fewer slices than half the colour stack's is a
+    // stack at another spacing, never to be paired by number (issue 31).
+    int matched = 0;
+    for (const auto& f : stack_)
+      matched += seg_by_number_.count({f.number, f.letter}) ? 1 : 0;
+    if (n > 1 && 2 * matched < n)
+      throw ConfigError(cat(config.path, ": seg: ", seg_by_number_.size(), " slices, of which ",
+                            matched, " match the number of one of the colour stack's ", n,
+                            " slices; set seg.slice_spacing_mm (and seg.z_offset_mm) to place "
+                            "them along z"));
+  }
 
   // Transforms: from the register stage, or identities when registration is disabled.
   tpath_ = transforms_path(config);
@@ -48,14 +66,26 @@ LabelsStageJob::LabelsStageJob(const Config& config, const StageOptions& options
 }
 
 std::string LabelsStageJob::seg_path(int k) const {
-  auto it = seg_by_number_.find(stack_[std::size_t(k)].number);
+  if (config_.seg->slice_spacing_mm) {
+    const int seg_j = seg_at_colour_slice(config_, int(seg_files_.size()), k);
+    return seg_j < 0 ? "" : seg_files_[std::size_t(seg_j)].path;
+  }
+  const SliceFile& colour = stack_[std::size_t(k)];
+  auto it = seg_by_number_.find({colour.number, colour.letter});
   return it == seg_by_number_.end() ? "" : it->second;
+}
+
+int LabelsStageJob::seg_grid_slice(int k) const {
+  if (!config_.seg->slice_spacing_mm) return k;
+  const int seg_j = seg_at_colour_slice(config_, int(seg_files_.size()), k);
+  return seg_j < 0 ? k : colour_slice_of_seg(config_, int(stack_.size()), seg_j);
 }
 
 std::string LabelsStageJob::input_fingerprint(int k) const {
   const std::string path = seg_path(k);
   Fingerprint fp;
   fp.text(path.empty() ? "no-seg" : "seg").file(path).file(stack_[std::size_t(k)].path);
+  if (config_.seg->slice_spacing_mm) fp.text("grid").number(seg_grid_slice(k));
   return fp.str();
 }
 
@@ -72,7 +102,7 @@ cv::Mat LabelsStageJob::compute(int k) {
   std::array<double, 2> center{};
   cv::Size out_size;
   if (have_transforms_) {
-    t = transforms_.slices[std::size_t(k)];
+    t = transforms_.slices[std::size_t(seg_grid_slice(k))];
     center = transforms_.center_px;
     out_size = cv::Size(transforms_.width, transforms_.height);
   }

@@ -163,10 +163,6 @@ cv::Mat remove_edge_gel(const cv::Mat& mask, const cv::Mat& rgb, const cv::Vec3f
   return out;
 }
 
-double mask_edge_level_hu(double hu_threshold) {
-  return std::min(hu_threshold, kAirTissueMidpointHu);
-}
-
 cv::Mat draw_mask_overlay(const cv::Mat& rgb, const cv::Mat& mask) {
   require_rgb_slice(rgb, "draw_mask_overlay");
   cv::Mat eroded;

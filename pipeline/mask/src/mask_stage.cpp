@@ -11,6 +11,7 @@
 
 #include "vispack/common/error.h"
 #include "vispack/common/parallel.h"
+#include "vispack/pipeline/core/slice_z.h"
 #include "vispack/pipeline/core/transforms.h"
 #include "vispack/pipeline/core/work_layout.h"
 #include "vispack/pipeline/imaging/intermediates.h"
@@ -49,23 +50,24 @@ MaskStageJob::MaskStageJob(const Config& config, const StackInputs& inputs,
            {transforms_path(config)}) {
   coverage_.assign(static_cast<std::size_t>(run_.range().size()), -1.0);
   parts_.assign(coverage_.size(), PartCounts{});
+  colour_only_slice_.assign(static_cast<std::size_t>(run_.range().size()), 0);
 }
 
 std::string MaskStageJob::input_fingerprint(int k) const {
   // The registered colour is rebuilt from input slice k and transforms.json (a stage input:
   // a new transforms.json reruns every slice).
-  const int ct_k = config_.ct ? k + config_.ct->slice_offset : -1;
-  const bool has_ct = config_.ct && ct_k >= 0 && ct_k < int(inputs_.ct.size());
+  const CtAtZ at = ct_at_colour_slice(config_, int(inputs_.ct.size()), k);
   Fingerprint fp;
   fp.text("mask-v2").file(inputs_.rgb[std::size_t(k)].path);  // v2: colour from the input slice
-  if (has_ct) fp.file(inputs_.ct[std::size_t(ct_k)].path);
+  if (at.inside()) fp.file(inputs_.ct[std::size_t(at.below)].path);
+  if (at.inside() && !at.exact())
+    fp.text("above").number(at.w_above).file(inputs_.ct[std::size_t(at.above)].path);
   return fp.str();
 }
 
 std::vector<std::string> MaskStageJob::outputs(int k) const {
   std::vector<std::string> outs = {mask_path(config_, k), run_.slice_path("overlay", k)};
-  const int ct_k = config_.ct ? k + config_.ct->slice_offset : -1;
-  const bool has_ct = config_.ct && ct_k >= 0 && ct_k < int(inputs_.ct.size());
+  const bool has_ct = ct_at_colour_slice(config_, int(inputs_.ct.size()), k).inside();
   if (has_ct && config_.work.write_ct) outs.push_back(mask_ct_path(config_, k));
   return outs;
 }
@@ -77,7 +79,10 @@ bool MaskStageJob::up_to_date(int k) const {
 cv::Mat MaskStageJob::compute(int k, const cv::Mat& rgb, const CtSlice& ct, cv::Mat* ct16) {
   const std::string in = input_fingerprint(k);
   const std::vector<std::string> outs = outputs(k);
-  const bool has_ct = !ct.hu.empty();
+  // At a body's tip between two CT slices the colour alone (CtSlice::body_ends); a black colour
+  // slice has no colour: the CT's blend there.
+  const bool tip = ct.body_ends && !inputs_.transforms.slices[std::size_t(k)].black;
+  const bool has_ct = !ct.hu.empty() && !tip;
   const bool write_ct = outs.size() > 2;
   // A CT copy from an earlier run with work.write_ct must not outlive the slice it shows.
   if (!write_ct) {
@@ -90,6 +95,7 @@ cv::Mat MaskStageJob::compute(int k, const cv::Mat& rgb, const CtSlice& ct, cv::
     bytes += ct_hu.total() * 2;
   } else {
     ++colour_only_;
+    colour_only_slice_[std::size_t(k - run_.range().first)] = tip ? 2 : 1;
   }
   const auto t0 = std::chrono::steady_clock::now();
   // A black (lost) colour slice has no colour to refine with: its mask is the CT's alone.
@@ -140,6 +146,17 @@ StageResult MaskStageJob::finish() {
   run_.set_quality("parts_removed", removed);
   run_.set_quality("mean_coverage", counted ? sum / counted : 0.0);
   run_.set_quality("colour_only_slices", colour_only_.load());
+  if (config_.ct) {
+    // Slices of this run whose z lies outside the CT's z range: no CT, a colour-only mask.
+    std::vector<int> outside, tips;
+    for (int i = 0; i < range.size(); ++i) {
+      if (colour_only_slice_[std::size_t(i)] == 1) outside.push_back(range.first + i);
+      if (colour_only_slice_[std::size_t(i)] == 2) tips.push_back(range.first + i);
+    }
+    run_.set_quality("outside_ct_slices", outside);
+    // Between two CT slices that do not show one body (a body's tip): colour-only masks.
+    run_.set_quality("body_tip_slices", tips);
+  }
   if (gel_count_ > 0)
     run_.set_quality("mean_gel_colour", {gel_sum_[0] / gel_count_, gel_sum_[1] / gel_count_,
                                          gel_sum_[2] / gel_count_});
@@ -162,7 +179,7 @@ StageResult run_mask_stage(const Config& config, const StageOptions& options) {
       return;
     }
     const cv::Mat rgb = registered_colour(config, inputs, k);
-    job.compute(k, rgb, read_ct_slice(config, inputs, k));
+    job.compute(k, rgb, read_ct_slice(config, inputs, k, /*for_mask=*/true));
   });
   return job.finish();
 }

@@ -8,6 +8,7 @@
 #include "vispack/common/error.h"
 #include "vispack/common/hash.h"
 #include "vispack/pipeline/core/fingerprint.h"
+#include "vispack/pipeline/core/slice_z.h"
 #include "vispack/pipeline/core/work_layout.h"
 
 namespace vispack::pipeline::detail {
@@ -36,10 +37,11 @@ std::string slab_input(const Config& config, const PackPlan& plan, std::int64_t 
   for (int k = first; k < last; ++k) {
     fp.file(plan.inputs.rgb[std::size_t(k)].path).file(mask_path(config, k));
     if (config.ct) {
-      const int ct_k = k + config.ct->slice_offset;
-      fp.text(ct_k >= 0 && ct_k < int(plan.inputs.ct.size())
-                  ? hex64(xxh64_file(plan.inputs.ct[std::size_t(ct_k)].path))
-                  : std::string("no CT slice"));
+      const CtAtZ at = ct_at_colour_slice(config, int(plan.inputs.ct.size()), k);
+      fp.text(at.inside() ? hex64(xxh64_file(plan.inputs.ct[std::size_t(at.below)].path))
+                          : std::string("no CT slice"));
+      if (at.inside() && !at.exact())
+        fp.number(at.w_above).text(hex64(xxh64_file(plan.inputs.ct[std::size_t(at.above)].path)));
     }
     if (config.seg) fp.file(labels_path(config, k));
   }

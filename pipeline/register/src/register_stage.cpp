@@ -14,7 +14,9 @@
 #include "vispack/common/error.h"
 #include "vispack/common/parallel.h"
 #include "vispack/common/progress.h"
+#include "vispack/pipeline/core/layout_check.h"
 #include "vispack/pipeline/core/output_frame.h"
+#include "vispack/pipeline/core/slice_z.h"
 #include "vispack/pipeline/core/transforms.h"
 #include "vispack/pipeline/core/work_layout.h"
 #include "vispack/pipeline/imaging/intermediates.h"
@@ -30,6 +32,9 @@ namespace fs = std::filesystem;
 
 constexpr int kOverlayEdge = 512;                     // longer edge of the QC overlay, px
 constexpr std::size_t kSmallCacheBytes = 256u << 20;  // overlay pictures kept between phases
+// The CT body fraction of the working grid under which estimate_ct_anchor finds nothing to anchor
+// on (ct_anchor.cpp): the report's "no body in the CT".
+constexpr double kAnchorMinBody = 1e-3;
 
 // `slice` (8/16-bit grey or RGB) as 8-bit RGB with its longer edge at most `max_edge` (INTER_AREA):
 // the picture the overlay draws on.
@@ -80,16 +85,9 @@ cv::Mat recorded_picture(const Config& config, int k) {
   }
 }
 
-// The CT slice on output slice k, if the CT stack has one.
-const SliceFile* ct_file(const Config& config, const std::vector<SliceFile>& ct_files, int k) {
-  if (!config.ct) return nullptr;
-  const int ct_k = k + config.ct->slice_offset;
-  if (ct_k < 0 || ct_k >= int(ct_files.size())) return nullptr;
-  return &ct_files[std::size_t(ct_k)];
-}
-
 // Fingerprint of what the record of slice k depends on: the register config section, the
-// anchor's inputs (ct section, output frame, hu threshold) and the files k−4..k (+ CT slice k).
+// anchor's inputs (ct section, output frame, hu threshold) and the files k−4..k (+ the CT slices
+// at slice k's z, slice_z.h).
 std::string pair_fingerprint(const Config& config, const std::vector<SliceFile>& files,
                              const std::vector<SliceFile>& ct_files, bool anchored, int k) {
   Fingerprint fp;
@@ -99,9 +97,12 @@ std::string pair_fingerprint(const Config& config, const std::vector<SliceFile>&
     fp.file(files[std::size_t(j)].path);
   if (anchored) {
     fp.text(config_section_hash(config, {"ct", "mask.hu_threshold"}));
-    const SliceFile* ct = ct_file(config, ct_files, k);
+    const CtAtZ at = ct_at_colour_slice(config, int(ct_files.size()), k);
+    const SliceFile* ct = at.inside() ? &ct_files[std::size_t(at.below)] : nullptr;
     fp.text(ct ? ct->path : "no CT slice");
     if (ct) fp.file(ct->path);
+    if (at.inside() && !at.exact())
+      fp.number(at.w_above).file(ct_files[std::size_t(at.above)].path);
   }
   return fp.str();
 }
@@ -119,14 +120,6 @@ std::optional<SlicePairs> load_pairs(const std::string& path, const std::string&
   }
 }
 
-cv::Mat read_ct_hu(const CtSource& ct, const std::string& path) {
-  cv::Mat raw = read_slice(path, ct.raw);
-  if (raw.channels() != 1) throw InputError(cat(path, ": CT slice must be single-channel"));
-  cv::Mat hu;
-  raw.convertTo(hu, CV_32F, ct.slope, ct.intercept);
-  return hu;
-}
-
 void warn(const StageOptions& options, const std::string& message) {
   (void)options;  // warnings are printed even with --quiet: they change what the output means
   std::fprintf(stderr, "vispack-register: warning: %s\n", message.c_str());
@@ -137,6 +130,15 @@ void warn(const StageOptions& options, const std::string& message) {
 StageResult run_register_stage(const Config& config, const StageOptions& options) {
   const std::vector<SliceFile> files = stack_slices(config);
   const int n = int(files.size());
+  // CT or segmentation extents that differ from the colour stack's (slice_z.h): reported with
+  // the solve's warnings.
+  const std::vector<std::string> z_warnings = z_extent_warnings(config, n);
+  for (const auto& w : z_warnings)
+    warn(options, w);
+  // A planar raw file read as interleaved (or the reverse) registers "fine" and packs a
+  // scrambled volume: the middle slice's samples tell (layout_check.h; one file read).
+  if (n > 0)
+    check_raw_layout(config.rgb, "rgb.raw.layout", files[std::size_t(n / 2)].path, config.path);
   RegisterOptions reg = config.registration;
   if (!reg.enabled) reg.method = "none";
   if (reg.method != "phase+ecc" && reg.method != "phase" && reg.method != "none")
@@ -213,11 +215,21 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
     std::function<std::optional<AnchorEstimate>(int, const RegisterFrame&)> anchor;
     if (anchored && reg.method != "none") {
       anchor = [&](int k, const RegisterFrame& f) -> std::optional<AnchorEstimate> {
-        const SliceFile* ct = ct_file(config, ct_files, k);
-        if (!ct) return std::nullopt;
-        const cv::Mat hu = read_ct_hu(*config.ct, ct->path);
+        const CtAtZ at = ct_at_colour_slice(config, int(ct_files.size()), k);
+        if (!at.inside()) return std::nullopt;  // outside the CT's z range: no anchor
+        // Between two CT slices (slice_z.h): the nearest one, trusted less the farther it lies,
+        // or the CT interpolated to slice k's z (register.ct_anchor_between).
+        const bool nearest = !at.exact() && reg.ct_anchor_between == "nearest";
+        const cv::Mat hu = nearest
+                               ? read_ct_hu(*config.ct, ct_files[std::size_t(at.nearest())].path)
+                               : ct_hu_at_colour_slice(config, ct_files, k);
         bytes += hu.total() * 2;
-        return estimate_ct_anchor(f, hu, *ct_to_rgb, anchor_options);
+        AnchorEstimate est = estimate_ct_anchor(f, hu, *ct_to_rgb, anchor_options);
+        if (nearest) {
+          est.confidence *= std::max(0.0, 1.0 - 2.0 * at.distance_mm / ct_slice_spacing_mm(config));
+          est.ok = est.ok && est.confidence > 0.0;
+        }
+        return est;
       };
     }
     std::vector<SlicePairs> computed =
@@ -278,6 +290,11 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
       solved = solve_stack(all, size, so);
     }
     std::vector<SliceTransform>& slices = solved.slices;
+    if (std::all_of(slices.begin(), slices.end(), [](const SliceTransform& t) { return t.black; }))
+      throw InputError(cat(config.rgb.dir, ": all ", n, " colour slices (pattern \"",
+                           config.rgb.pattern,
+                           "\") are black: nothing to register or pack; check rgb.dir, "
+                           "rgb.pattern and rgb.raw"));
     for (int k = 0; k < n; ++k) {
       slices[std::size_t(k)].number = files[std::size_t(k)].number;
       slices[std::size_t(k)].file = fs::path(files[std::size_t(k)].path).filename().string();
@@ -323,6 +340,10 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
     nlohmann::json warnings = nlohmann::json::array();
     if (so.anchor == "ct") {
       nlohmann::json weak = nlohmann::json::array(), unanchored = nlohmann::json::array();
+      // Why a slice has no anchor (issue 31): no CT at its z, no body in that CT, or the
+      // alignment failed.
+      nlohmann::json outside_ct = nlohmann::json::array(), no_body = nlohmann::json::array(),
+                     failed = nlohmann::json::array();
       double csum = 0, rsum2 = 0;
       int cn = 0;
       for (const auto& s : slices) {
@@ -330,6 +351,11 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
         const double conf = s.extra.value("anchor_confidence", 0.0);
         if (conf == 0.0) {
           unanchored.push_back(s.index);
+          const auto& a = all[std::size_t(s.index)].anchor;
+          (!a                                  ? outside_ct
+           : a->body_fraction < kAnchorMinBody ? no_body
+                                               : failed)
+              .push_back(s.index);
         } else if (conf < 0.3) {
           weak.push_back({{"slice", s.index}, {"confidence", conf}});
         }
@@ -344,10 +370,15 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
       run.set_quality("anchor_residual_rms_px", cn ? std::sqrt(rsum2 / csum) : 0.0);
       run.set_quality("low_confidence_anchors", weak);
       run.set_quality("unanchored_slices", unanchored);
+      run.set_quality("unanchored_outside_ct", outside_ct);
+      run.set_quality("unanchored_no_body", no_body);
+      run.set_quality("unanchored_alignment_failed", failed);
       if (!unanchored.empty())
-        warnings.push_back(cat(unanchored.size(),
-                               " slices have no CT anchor (no body in the CT, no CT slice, or the "
-                               "alignment failed); their transforms follow their neighbours"));
+        warnings.push_back(cat(unanchored.size(), " slices have no CT anchor (", outside_ct.size(),
+                               " outside the CT's z range, ", no_body.size(),
+                               " with no body in the CT, ", failed.size(),
+                               " where the alignment failed); their transforms follow their "
+                               "neighbours"));
     } else {
       warnings.push_back(
           so.anchor == "fiducials"
@@ -359,6 +390,8 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
     }
     for (const auto& w : warnings)
       warn(options, w.get<std::string>());
+    for (const auto& w : z_warnings)  // printed when the stage began
+      warnings.push_back(w);
     run.set_report("warnings", warnings);
     nlohmann::json over = nlohmann::json::array();
     for (const auto& o : overrides)
@@ -416,13 +449,15 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
     parallel_for(range.size(), run.threads(), [&](std::int64_t i) {
       const int k = range.first + int(i);
       const SliceTransform& t = st->slices[std::size_t(k)];
-      const SliceFile* ct = ct_file(config, ct_files, k);
+      const CtAtZ at = ct_at_colour_slice(config, int(ct_files.size()), k);
       Fingerprint in_fp;
       in_fp.file(files[std::size_t(k)].path)
           .number(t.rigid.dx_px)
           .number(t.rigid.dy_px)
           .number(t.rigid.rotation_deg);
-      if (ct) in_fp.file(ct->path);
+      if (at.inside()) in_fp.file(ct_files[std::size_t(at.below)].path);
+      if (at.inside() && !at.exact())
+        in_fp.number(at.w_above).file(ct_files[std::size_t(at.above)].path);
       const std::string in = in_fp.str();
       const std::string out = registered_rgb_path(config, k);
       const std::string overlay = run.slice_path("qc/overlay", k);
@@ -437,7 +472,7 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
         fs::remove(out, ec);
       }
       cv::Mat hu;
-      if (ct && st->ct_to_rgb) hu = read_ct_hu(*config.ct, ct->path);
+      if (at.inside() && st->ct_to_rgb) hu = ct_hu_at_colour_slice(config, ct_files, k);
       const Similarity ct_to_rgb = st->ct_to_rgb ? *st->ct_to_rgb : Similarity{};
       cv::Mat kept = keep_small ? small[std::size_t(k)] : cv::Mat();
       if (kept.empty() && !write_registered) kept = recorded_picture(config, k);

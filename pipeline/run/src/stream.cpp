@@ -116,7 +116,7 @@ std::vector<StageResult> run_stream(const Config& config, const StageOptions& op
       }
     } else {
       in.rgb = registered_colour(config, inputs, k);
-      const CtSlice ct = read_ct_slice(config, inputs, k);
+      const CtSlice ct = read_ct_slice(config, inputs, k, /*for_mask=*/true);
       in.mask = mask.compute(k, in.rgb, ct, pack && config.ct ? &in.ct : nullptr);
     }
     if (labels) {

@@ -69,8 +69,14 @@ struct PhantomOptions {
   bool drift = true;              // false: the random walk is exactly zero (camera offset stays)
   bool jump = true;               // false: no block jump
   double ct_scale = 0;            // CT pixel / colour pixel; 0 = the preset's (0.25..16)
-  int threads = 0;                // 0 = all cores (parallel over slices; output independent of it)
-  bool quiet = false;             // no progress lines on stderr
+  // A CT slice only at every ct_every-th colour slice (k = 0, e, 2e, ...; written as ct_<k/e>),
+  // config ct.slice_spacing_mm = e · slice spacing (issue 31: the VH female's 3:1, the Visible
+  // Korean's 5:1). Colour slices beyond the last CT slice lie outside the CT's z range.
+  int ct_every = 1;  // 1..1000
+  // The same for the segmentation (written as seg_<k/e>, config seg.slice_spacing_mm).
+  int seg_every = 1;   // 1..1000
+  int threads = 0;     // 0 = all cores (parallel over slices; output independent of it)
+  bool quiet = false;  // no progress lines on stderr
 };
 
 struct PhantomSummary {

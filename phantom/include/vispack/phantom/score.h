@@ -63,7 +63,20 @@ struct DriftScore {
   double body_rms_px = std::numeric_limits<double>::quiet_NaN();
   double body_max_px = std::numeric_limits<double>::quiet_NaN();
   int body_slices = 0;
+  // Drift where it shows (issue 31; score_work only): per slice the largest displacement between
+  // estimate and truth over the truth body's pixels (its convex hull's vertices), NaN where the
+  // truth slice has no body or is not scored. The output clears everything outside the body, so
+  // this is a slice's visible error; the frame's corners (error_px) also count a rotation that a
+  // small body cannot show and that does no harm. RMS and max over the slices with body.
+  std::vector<double> over_body_px;
+  double over_body_rms_px = std::numeric_limits<double>::quiet_NaN();
+  double over_body_max_px = std::numeric_limits<double>::quiet_NaN();
+  int over_body_max_slice = -1, over_body_slices = 0;
 };
+// The largest displacement (output pixels) between a(q) and b(q) over `points` (output-grid
+// pixels) of a W×H grid; 0 when `points` is empty.
+double transform_error_over_px(const SliceRigid& a, const SliceRigid& b, int width, int height,
+                               const std::vector<cv::Point>& points);
 // Per-slice cumulative drift error = transform_error_px(estimate_k, truth_k). Throws Error when
 // the two files differ in grid size or slice count.
 DriftScore score_drift(const TransformsFile& truth, const TransformsFile& estimate);

@@ -40,7 +40,12 @@ struct CtSource : SliceSource {
   std::array<double, 2> pixel_spacing_mm{1.0, 1.0};
   double slope = 1.0;  // hu = stored * slope + intercept
   double intercept = -1024.0;
-  int slice_offset = 0;  // CT slice (k + slice_offset) lies on output slice k
+  // Along z (slice_z.h, issue 31): CT slice j (stack index, sorted by number) lies at
+  // z = z_offset_mm + j · slice_spacing_mm, colour slice k at k · spacing_mm[2] (mm).
+  // ct.slice_spacing_mm: load_config fills in spacing_mm[2] when the key is absent; unset in a
+  // Config built in code means the same.
+  std::optional<double> slice_spacing_mm;
+  double z_offset_mm = 0.0;  // ct.z_offset_mm: z of CT slice 0 minus z of colour slice 0
 };
 
 struct SegSource : SliceSource {
@@ -49,6 +54,12 @@ struct SegSource : SliceSource {
   double tolerance = 24.0;      // max Euclidean RGB distance for nearest-colour matching
   bool strict = false;          // an out-of-tolerance colour is an error instead of label 0
   std::string id_map;           // mode "id": optional JSON {"<input id>": <output id>}, absolute
+  // Along z (slice_z.h, issue 31). seg.slice_spacing_mm unset (the default): segmentation slices
+  // are matched to colour slices by the number in the file name. Set: segmentation slice j (stack
+  // index) lies at z = z_offset_mm + j · slice_spacing_mm and each colour slice takes the one
+  // nearest in z (none within half a spacing: label 0, listed).
+  std::optional<double> slice_spacing_mm;
+  double z_offset_mm = 0.0;  // seg.z_offset_mm (needs seg.slice_spacing_mm)
 };
 
 struct RegisterOptions {
@@ -67,6 +78,12 @@ struct RegisterOptions {
   // observable, the report says so) or "auto" (ct when configured, else fiducials when found,
   // else none).
   std::string anchor = "auto";
+  // register.ct_anchor_between: the CT anchor of a colour slice that lies between two CT slices
+  // (slice_z.h): "nearest" = aligned to the CT slice nearest in z, its confidence scaled by
+  // 1 − 2·d/ct.slice_spacing_mm (d = the z distance, so 0 half-way: no anchor there);
+  // "interpolated" = aligned to the CT interpolated linearly in HU to its z, full confidence.
+  // docs/BENCHMARKS.md "CT at its own slice spacing" compares them.
+  std::string ct_anchor_between = "nearest";
   std::string overrides;  // absolute path of the per-slice override file; empty = none
 };
 

@@ -13,13 +13,17 @@ namespace vispack::pipeline {
 struct SliceFile {
   int number;        // the number parsed from the file name where the pattern has {n}
   std::string path;  // absolute (source.dir + "/" + file name)
+  int letter = -1;   // with {n}{a}: the letter after the number, 0 = 'a' .. 25 = 'z'; else -1
 };
 
 // Files of a SliceSource whose names match its pattern ({n} = one or more decimal digits),
-// sorted by that number (so rgb_2 comes before rgb_10). Sub-folders and non-matching names are
-// ignored. Throws ConfigError naming the folder and the pattern when the folder is missing, the
-// pattern has no {n}, or nothing matches; ConfigError naming both files when two files carry the
-// same number (e.g. rgb_7.png and rgb_007.png).
+// sorted by that number (so rgb_2 comes before rgb_10). A pattern may follow {n} with {a}: one
+// letter a..z (either case) after the number, ordering the files of one number (the NLM female's
+// avf1001a, avf1001b, avf1001c: pattern "avf{n}{a}.raw"; sorted by number, then letter).
+// Sub-folders and non-matching names are ignored. Throws ConfigError naming the folder and the
+// pattern when the folder is missing, the pattern has no {n} (or an {a} not right after it), or
+// nothing matches; ConfigError naming both files when two files carry the same number (and
+// letter) (e.g. rgb_7.png and rgb_007.png).
 std::vector<SliceFile> list_slices(const SliceSource& source);
 
 }  // namespace vispack::pipeline

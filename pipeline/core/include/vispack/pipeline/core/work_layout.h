@@ -35,7 +35,23 @@ std::string mask_ct_path(const Config& config, int index);
 std::string labels_path(const Config& config, int index);
 
 // The colour stack: list_slices(config.rgb). Its order defines the stack index k (= output z).
+// Throws InputError when a CT slice is missing inside the CT stack, ConfigError when the CT or
+// the segmentation covers less than half the colour stack's z extent (z_extent_warnings).
 std::vector<SliceFile> stack_slices(const Config& config);
+
+// Slices placed along z by their position in their stack (CT; segmentation with
+// seg.slice_spacing_mm) must not miss one inside the stack: that would shift every later one.
+// The step is the smallest difference between consecutive numbers (1 for ct_0000, ct_0001, ...;
+// 3 for ct_0000, ct_0003, ...). Throws InputError naming the folder, the missing number and its
+// neighbours; `what` names the stack ("CT").
+void check_no_missing_slice(const SliceSource& source, const std::vector<SliceFile>& files,
+                            const std::string& what);
+
+// The z extent checks of slice_z.h check_z_extents for the config's CT and segmentation folders
+// against a colour stack of `colour_count` slices: the warnings (extents that differ by more than
+// two of the input's slices); throws ConfigError (exit 5) naming the key when an input covers
+// less than half of the colour stack.
+std::vector<std::string> z_extent_warnings(const Config& config, int colour_count);
 
 // The register stage's transforms for a stack of `slice_count` slices: reads
 // <work>/register/transforms.json. Throws InputError naming the file when it is missing ("run

@@ -21,15 +21,33 @@ namespace vispack::pipeline {
 // inputs give the same bytes. Throws InputError naming the slice when its size differs.
 cv::Mat registered_colour(const Config& config, const StackInputs& inputs, int index);
 
-// CT slice k + ct.slice_offset in HU (CV_32F, CT resolution) and the map from output pixels to
+// A CT slice file in HU (CV_32F): stored value × ct.slope + ct.intercept. Throws InputError
+// naming the file when it is not single-channel.
+cv::Mat read_ct_hu(const CtSource& ct, const std::string& path);
+
+// The CT in HU (CV_32F, CT resolution) at the z of colour slice `colour_k` (slice_z.h): the one CT
+// slice read as is when the colour slice lies on it (the 1:1 case), else the two CT slices around
+// its z blended linearly in HU; empty outside the CT's z range or without CT. `ct_files` is the
+// CT stack (list_slices(*config.ct)). Throws InputError naming a file that is not single-channel
+// or whose size differs from its neighbour's.
+cv::Mat ct_hu_at_colour_slice(const Config& config, const std::vector<SliceFile>& ct_files,
+                              int colour_k);
+
+// The CT at output slice k's z in HU (ct_hu_at_colour_slice) and the map from output pixels to
 // its pixels (transforms.h output_to_ct with transforms.json's ct_to_rgb, else the config's
-// definition). Without CT, or when the CT stack has no slice for k, `hu` is empty.
+// definition). Without CT, or when slice k lies outside the CT's z range, `hu` is empty.
+// With `for_mask`, a slice between two CT slices is also checked for `body_ends`.
 struct CtSlice {
   cv::Mat hu;
   cv::Matx23d out_to_ct{1, 0, 0, 0, 1, 0};
-  std::string path;  // the CT file; empty when none
+  std::string path;  // the CT file nearest in z; empty when none
+  // The two CT slices around this z do not show one body (ct_body_mask at the mask's edge level:
+  // one has none, or they overlap by less than half the smaller): a body's tip, which the blend
+  // loses (a third of the way for soft tissue). The mask stage takes the colour alone there.
+  bool body_ends = false;
 };
-CtSlice read_ct_slice(const Config& config, const StackInputs& inputs, int index);
+CtSlice read_ct_slice(const Config& config, const StackInputs& inputs, int index,
+                      bool for_mask = false);
 
 // The CT of output slice k on the output grid as work/mask/ct_NNNN.png stores it (CV_16UC1,
 // HU + 32768; mask.h resample_ct, encode_hu16): the one implementation the mask stage writes

@@ -47,6 +47,16 @@ namespace vispack::pipeline {
 
 // Opening radius (CT pixels) that cuts a head-holder or table from the body in the CT.
 inline constexpr int kCtDetachPx = 2;
+
+// Half way between air (−1000 HU) and soft tissue (about 0 HU: fat −100, skin and muscle +40):
+// where a CT pixel is half covered by the body.
+inline constexpr double kAirTissueMidpointHu = -500.0;
+// The HU level at which the mask's edge is placed (the mask stage, and the CT blend's check of
+// a body's tip): mask.hu_threshold, but never above kAirTissueMidpointHu (a higher level puts the
+// edge inside the partial-volume band).
+inline double mask_edge_level_hu(double hu_threshold) {
+  return hu_threshold < kAirTissueMidpointHu ? hu_threshold : kAirTissueMidpointHu;
+}
 // A piece the opening removed that reaches farther than this (CT pixels) from every kept part is
 // a holder or table touching the body: none of it comes back.
 inline constexpr int kHolderReachPx = 3 * (kCtDetachPx + 1);

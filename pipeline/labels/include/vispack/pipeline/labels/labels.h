@@ -23,8 +23,11 @@
 // transforms.h) by NEAREST neighbour only: label(q) = seg(round(p(q))), so two IDs are never
 // blended. Output: work/labels/labels_NNNN.png (16-bit grey IDs) + report.json (counts of exact,
 // nearest and unmatched pixels, first unmatched positions, IDs present, missing seg slices). Seg
-// slices are matched to colour slices by the number in the file name; a colour slice with no seg
-// slice gets an all-zero label slice and is listed in the report under "missing_seg".
+// slices are matched to colour slices by the number in the file name, or, with
+// seg.slice_spacing_mm, each colour slice takes the seg slice nearest in z (slice_z.h), resampled
+// with the transform of the colour slice nearest that seg slice's z (the grid it was drawn on);
+// a colour slice with no seg slice (by number, or none within half a seg spacing) gets an
+// all-zero label slice and is listed in the report under "missing_seg".
 //
 // Thread-safety: ColourMatcher is immutable after construction and may be shared by threads;
 // the other functions here are pure. The stage is in labels_stage.h.

@@ -9,6 +9,7 @@
 #include <set>
 #include <string>
 #include <unordered_map>
+#include <utility>
 #include <vector>
 
 #include <nlohmann/json.hpp>
@@ -49,10 +50,16 @@ class LabelsStageJob {
 
  private:
   std::string seg_path(int k) const;
+  // The colour slice whose observed grid the segmentation of slice k was drawn on (its
+  // transform carries it to the output grid): k itself when segmentation slices are matched by
+  // number, else the colour slice nearest the segmentation slice's z (slice_z.h).
+  int seg_grid_slice(int k) const;
   std::string input_fingerprint(int k) const;
   const Config& config_;
   std::vector<SliceFile> stack_;
-  std::map<int, std::string> seg_by_number_;
+  // Without seg.slice_spacing_mm: by (number, letter) of the file name (slice_io.h).
+  std::map<std::pair<int, int>, std::string> seg_by_number_;
+  std::vector<SliceFile> seg_files_;  // with seg.slice_spacing_mm: the stack along z
   std::string tpath_;
   StackTransforms transforms_;
   bool have_transforms_ = false;

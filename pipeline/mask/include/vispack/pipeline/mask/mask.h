@@ -2,8 +2,9 @@
 //
 // The mask of output slice k comes from the CT, because colour thresholding alone fails in the
 // translucent blue gel (tissue shows through it, fiducial tubes of another colour sit in it):
-//   1. CT slice (k + ct.slice_offset) in HU: HU > L, the edge level L = mask_edge_level_hu:
-//      mask.hu_threshold, but never above kAirTissueMidpointHu (−500 HU).
+//   1. The CT at slice k's z in HU (slice_z.h: linear between the CT slices around it): HU > L,
+//      the edge level L = mask_edge_level_hu: mask.hu_threshold, but never above
+//      kAirTissueMidpointHu (−500 HU).
 //   2. Detach what merely touches the body (head-holder, table): an opening of radius
 //      kCtDetachPx CT pixels (removes structures thinner than about 2·kCtDetachPx), every part
 //      that is body by the part rule (outline.h: not smaller than mask.min_part_mm2, not thin and
@@ -58,13 +59,6 @@
 #include "vispack/pipeline/imaging/outline.h"
 
 namespace vispack::pipeline {
-
-// Half way between air (−1000 HU) and soft tissue (about 0 HU: fat −100, skin and muscle +40):
-// where a CT pixel is half covered by the body.
-inline constexpr double kAirTissueMidpointHu = -500.0;
-// The HU level at which the mask's edge is placed: mask.hu_threshold, but never above
-// kAirTissueMidpointHu (a higher level puts the edge inside the partial-volume band).
-double mask_edge_level_hu(double hu_threshold);
 
 // Step 4: removes from `mask` the gel-coloured pixels connected to its outside. A pixel is
 // gel-coloured when its RGB distance to `gel` is below `distance` or below half the median

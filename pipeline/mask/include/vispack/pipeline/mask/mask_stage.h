@@ -59,6 +59,9 @@ class MaskStageJob {
   std::vector<PartCounts> parts_;  // per slice of the range: body parts kept and removed
   std::atomic<long long> compute_ns_{0};
   std::atomic<int> colour_only_{0};
+  // Per slice of the range: computed without CT: 1 = outside the CT's z range (slice_z.h),
+  // 2 = at a body's tip between two CT slices (CtSlice::body_ends).
+  std::vector<char> colour_only_slice_;
   std::mutex gel_mutex_;
   cv::Vec3d gel_sum_{0, 0, 0};
   int gel_count_ = 0;
