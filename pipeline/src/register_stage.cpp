@@ -316,6 +316,15 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
                                     ", ", n, " slices")));
     // Report.
     run.set_quality("anchor", so.anchor);
+    {
+      // Body parts each modality showed per anchored slice, and the slices to look at.
+      nlohmann::json parts = nlohmann::json::object();
+      for (int k = 0; k < n; ++k)
+        if (const auto& a = anchors[std::size_t(k)])
+          parts[std::to_string(k)] = {{"ct", a->parts_ct}, {"colour", a->parts_colour}};
+      run.set_quality("anchor_parts", parts);
+      run.set_quality("abrupt_anchor_changes", abrupt_anchor_changes(anchors));
+    }
     run.set_quality("frame", solved.frame);
     run.set_quality("fiducial_groups", solved.fiducial_groups);
     nlohmann::json warnings = nlohmann::json::array();
