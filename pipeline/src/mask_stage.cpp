@@ -57,7 +57,8 @@ std::string MaskStageJob::input_fingerprint(int k) const {
   const int ct_k = config_.ct ? k + config_.ct->slice_offset : -1;
   const bool has_ct = config_.ct && ct_k >= 0 && ct_k < int(inputs_.ct.size());
   Fingerprint fp;
-  fp.text("mask-v2").file(inputs_.rgb[std::size_t(k)].path);  // v2: colour from the input slice
+  // v2: colour from the input slice; v3: every body part (issue #30).
+  fp.text("mask-v3").file(inputs_.rgb[std::size_t(k)].path);
   if (has_ct) fp.file(inputs_.ct[std::size_t(ct_k)].path);
   return fp.str();
 }

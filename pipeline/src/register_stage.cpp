@@ -91,12 +91,14 @@ const SliceFile* ct_file(const Config& config, const std::vector<SliceFile>& ct_
 std::string pair_fingerprint(const Config& config, const std::vector<SliceFile>& files,
                              const std::vector<SliceFile>& ct_files, bool anchored, int k) {
   Fingerprint fp;
-  fp.text("pairs-v4");  // the record's layout and method version (v4: σ from the body size)
+  // The record's layout and method version (v4: σ from the body size; v5: every body part in the
+  // anchor, its part counts recorded).
+  fp.text("pairs-v5");
   fp.text(config_section_hash(config, {"register", "spacing_mm"}));
   for (int j = std::max(0, k - 4); j <= k; ++j)
     fp.file(files[std::size_t(j)].path);
   if (anchored) {
-    fp.text(config_section_hash(config, {"ct", "mask.hu_threshold"}));
+    fp.text(config_section_hash(config, {"ct", "mask.hu_threshold", "mask.min_part_mm2"}));
     const SliceFile* ct = ct_file(config, ct_files, k);
     fp.text(ct ? ct->path : "no CT slice");
     if (ct) fp.file(ct->path);
