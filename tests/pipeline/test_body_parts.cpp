@@ -101,11 +101,11 @@ TEST(BodyParts, MalePresetAgainstTruth) {
   // The case holds what it is for: several parts in most slices, ten toes at the end.
   EXPECT_GE(several, part_slices / 2);
   EXPECT_GE(most_parts, 10);
-  // The goal is 0.5 px; measured 0.58: the top of the head (slices 1-4, a small round
-  // body whose anchors turn 0.2-0.3° off) and the right arm resting on the table (slices 21-25,
-  // 0.5-0.95 px: the CT still shows the arm's contact with the table differently from the
-  // colour slice). Bound at what is reached, so that a regression shows.
-  EXPECT_LE(score.drift.body_rms_px, 0.65);
+  // The goal is 0.5 px; measured 0.562: the top of the head (slices 1-4, 1.2-3.0 px: a
+  // small round body whose rotation the anchors pin weakly, and the solve follows the pairs
+  // across the head cap) and the right arm resting on the table (slices 21-24, 0.57-0.78 px).
+  // Bound at what is reached, so that a regression shows.
+  EXPECT_LE(score.drift.body_rms_px, 0.6);
   EXPECT_EQ(score.jumps.false_jumps, 0);
   EXPECT_GE(score.mask.stack_iou, 0.98);
   EXPECT_GE(score.mask.min_body_iou, 0.95) << "slice " << score.mask.min_body_slice;

@@ -348,11 +348,16 @@ AnchorEstimate estimate_ct_anchor(const RegisterFrame& frame, const cv::Mat& ct_
     // Only the body takes part: what the CT shows around it (head-holder, table) has no
     // counterpart in the colour slice and, beside a small body at the stack's ends, biases the
     // alignment (rotation most). Everything outside the body (grown by one pixel, its partial-
-    // volume edge) becomes air.
+    // volume edge) becomes air; in that edge, what is denser than the threshold is not the
+    // body's partial volume but a holder or table touching it (an arm resting on the table):
+    // clamped to the threshold.
     cv::Mat keep;
-    cv::dilate(ct_body_mask(ct32, options.hu_threshold, options.min_part_ct_px), keep,
-               cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(3, 3)));
+    const cv::Mat body = ct_body_mask(ct32, options.hu_threshold, options.min_part_ct_px);
+    cv::dilate(body, keep, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(3, 3)));
     ct32.setTo(cv::Scalar(kHuLow), keep == 0);
+    const cv::Mat edge = keep & ~body;
+    cv::Mat clamped = cv::min(ct32, options.hu_threshold);
+    clamped.copyTo(ct32, edge);
   }
   const cv::Matx23d out_to_ct =
       invert_affine(similarity_matrix(ct_to_rgb, image_centre(ct32.size()), c_full));
