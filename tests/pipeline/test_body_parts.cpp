@@ -21,6 +21,7 @@
 #include "vispack/phantom/score.h"
 #include "vispack/pipeline/core/work_layout.h"
 #include "vispack/pipeline/imaging/slice_io.h"
+#include "vispack/pipeline/register/register.h"
 
 namespace vp = vispack::pipeline;
 namespace vph = vispack::phantom;
@@ -100,11 +101,11 @@ TEST(BodyParts, MalePresetAgainstTruth) {
   // The case holds what it is for: several parts in most slices, ten toes at the end.
   EXPECT_GE(several, part_slices / 2);
   EXPECT_GE(most_parts, 10);
-  // The goal is 0.5 px; measured 0.58: the top of the head (slices 1-4, a small round
-  // body whose anchors turn 0.2-0.3° off) and the right arm resting on the table (slices 21-25,
-  // 0.5-0.95 px: the CT still shows the arm's contact with the table differently from the
-  // colour slice). Bound at what is reached, so that a regression shows.
-  EXPECT_LE(score.drift.body_rms_px, 0.65);
+  // The goal is 0.5 px; measured 0.562: the top of the head (slices 1-4, 1.2-3.0 px: a
+  // small round body whose rotation the anchors pin weakly, and the solve follows the pairs
+  // across the head cap) and the right arm resting on the table (slices 21-24, 0.57-0.78 px).
+  // Bound at what is reached, so that a regression shows.
+  EXPECT_LE(score.drift.body_rms_px, 0.6);
   EXPECT_EQ(score.jumps.false_jumps, 0);
   EXPECT_GE(score.mask.stack_iou, 0.98);
   EXPECT_GE(score.mask.min_body_iou, 0.95) << "slice " << score.mask.min_body_slice;
@@ -117,4 +118,45 @@ TEST(BodyParts, MalePresetAgainstTruth) {
   const nlohmann::json& parts = report.at("quality").at("parts");
   EXPECT_EQ(int(parts.size()), n);
   EXPECT_GE(parts.at(std::to_string(n / 2)).at("kept").get<int>(), 1);
+  // The register stage's report: the parts each modality showed to the anchor (the torso and an
+  // arm on each side where the gaps are widest, t 0.2-0.45: the CT merges an arm 2 px away; two
+  // legs, t 0.8-0.9) and the slices where they change abruptly (arms and legs, the toes).
+  std::ifstream gf(config.work_dir + "/register/report.json");
+  const nlohmann::json reg = nlohmann::json::parse(gf).at("quality");
+  const nlohmann::json& anchor_parts = reg.at("anchor_parts");
+  int arms_ct = 0, arms_colour = 0;
+  for (int k = int(0.2 * (n - 1)); k <= int(0.45 * (n - 1)); ++k) {
+    arms_ct = std::max(arms_ct, anchor_parts.at(std::to_string(k)).at("ct").get<int>());
+    arms_colour = std::max(arms_colour, anchor_parts.at(std::to_string(k)).at("colour").get<int>());
+  }
+  EXPECT_EQ(arms_ct, 3);
+  EXPECT_EQ(arms_colour, 3);
+  for (int k = int(0.8 * (n - 1)); k <= int(0.9 * (n - 1)); ++k) {
+    EXPECT_EQ(anchor_parts.at(std::to_string(k)).at("ct").get<int>(), 2) << "slice " << k;
+    EXPECT_EQ(anchor_parts.at(std::to_string(k)).at("colour").get<int>(), 2) << "slice " << k;
+  }
+  EXPECT_FALSE(reg.at("abrupt_anchor_changes").empty());
+}
+
+// Abrupt changes of an anchor's part counts or confidence from the previous anchored slice.
+TEST(BodyParts, AbruptAnchorChanges) {
+  std::vector<std::optional<vp::AnchorEstimate>> anchors(7);
+  auto anchor = [](int ct, int colour, double confidence) {
+    vp::AnchorEstimate a;
+    a.ok = true, a.parts_ct = ct, a.parts_colour = colour, a.confidence = confidence;
+    return a;
+  };
+  anchors[0] = anchor(1, 1, 1.0);
+  anchors[1] = anchor(2, 2, 1.0);  // one more part: not abrupt
+  anchors[2] = anchor(2, 4, 1.0);  // colour +2
+  // 3: no anchor; 4 is compared with 2
+  anchors[4] = anchor(2, 4, 0.6);  // confidence −0.4
+  anchors[5] = anchor(4, 4, 0.6);  // CT +2
+  anchors[6] = anchor(4, 4, 0.5);
+  EXPECT_EQ(vp::abrupt_anchor_changes(anchors), (std::vector<int>{2, 4, 5}));
+  // Old records (no part counts) read as 0 parts.
+  nlohmann::json j = vp::to_json(*anchors[5]);
+  j.erase("parts_ct");
+  j.erase("parts_colour");
+  EXPECT_EQ(vp::anchor_from_json(j, "test").parts_ct, 0);
 }

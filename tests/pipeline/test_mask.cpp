@@ -9,6 +9,7 @@
 
 #include "phantom_case.h"
 #include "test_support.h"
+#include "vispack/common/error.h"
 #include "vispack/common/nrrd.h"
 #include "vispack/phantom/phantom.h"
 #include "vispack/phantom/score.h"
@@ -94,6 +95,30 @@ TEST(Mask, CtMaskKeepsEveryBodyPartAndDropsHolders) {
   EXPECT_EQ(cv::countNonZero(body(cv::Rect(48, 87, 10, 3))), 0) << "table in the mask";
   EXPECT_LE(cv::countNonZero(body & ~expect), 30);
   EXPECT_GT(iou(body, expect), 0.99);
+}
+
+// mask.min_part_mm2 in mm² on the slice's plane: a part of 8×8 CT px at 1 mm (64 mm²) is body at
+// a minimum of 50 mm² and debris at 80 mm²; compute_mask turns the key into CT pixels through the
+// output pixel area and out_to_ct's scale (CT pixels 4× the output's: 0.25 mm output pixels).
+TEST(Mask, MinimumPartAreaInSquareMillimetres) {
+  cv::Mat ct(64, 64, CV_32F, cv::Scalar(-1000));
+  cv::circle(ct, {24, 32}, 14, cv::Scalar(40), -1);
+  cv::rectangle(ct, cv::Rect(48, 28, 8, 8), cv::Scalar(40), -1);  // the small part
+  const cv::Matx23d out_to_ct(0.25, 0, 0, 0, 0.25, 0);            // 4 output px per CT px
+  const cv::Mat rgb(256, 256, CV_8UC3, cv::Scalar(40, 70, 160));
+  vp::MaskOptions options;
+  options.refine_gel = false;
+  options.min_part_mm2 = 50;
+  const vp::MaskSlice kept = vp::compute_mask(rgb, &ct, out_to_ct, options, 0.25 * 0.25);
+  EXPECT_EQ(kept.parts.kept, 2);
+  EXPECT_EQ(kept.mask.at<std::uint8_t>(4 * 32, 4 * 52), 255);
+  options.min_part_mm2 = 80;
+  const vp::MaskSlice dropped = vp::compute_mask(rgb, &ct, out_to_ct, options, 0.25 * 0.25);
+  EXPECT_EQ(dropped.parts.kept, 1);
+  EXPECT_EQ(dropped.parts.removed, 1);
+  EXPECT_EQ(dropped.mask.at<std::uint8_t>(4 * 32, 4 * 52), 0);
+  EXPECT_EQ(dropped.mask.at<std::uint8_t>(4 * 32, 4 * 24), 255);
+  EXPECT_THROW(vp::compute_mask(rgb, &ct, out_to_ct, options, 0.0), vispack::Error);
 }
 
 // Colour-only: two legs of nearly equal size are both body; a green fiducial tube the size of a

@@ -58,7 +58,8 @@ std::string MaskStageJob::input_fingerprint(int k) const {
   // a new transforms.json reruns every slice).
   const CtAtZ at = ct_at_colour_slice(config_, int(inputs_.ct.size()), k);
   Fingerprint fp;
-  fp.text("mask-v2").file(inputs_.rgb[std::size_t(k)].path);  // v2: colour from the input slice
+  // v2: colour from the input slice; v3: every body part (issue #30).
+  fp.text("mask-v3").file(inputs_.rgb[std::size_t(k)].path);
   if (at.inside()) fp.file(inputs_.ct[std::size_t(at.below)].path);
   if (at.inside() && !at.exact())
     fp.text("above").number(at.w_above).file(inputs_.ct[std::size_t(at.above)].path);

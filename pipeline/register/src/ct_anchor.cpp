@@ -170,7 +170,8 @@ cv::Mat predict_ct(const cv::Mat& rgb, const double coef[kFeatures]) {
 // slice for its colour test, CV_32FC3 in 0..1), grown by two pixels for the soft edge. Fiducial
 // tubes, holders and debris, which the other modality does not show, are cut off; arms, legs
 // and toes all stay (the header: why the anchor must see them all).
-cv::Mat body_only(cv::Mat soft, double min_part_px, const cv::Mat& rgb = cv::Mat()) {
+cv::Mat body_only(cv::Mat soft, double min_part_px, const cv::Mat& rgb = cv::Mat(),
+                  int* parts = nullptr) {
   PartRule rule;
   rule.min_area_px = min_part_px;
   cv::Mat rgb8;
@@ -178,9 +179,11 @@ cv::Mat body_only(cv::Mat soft, double min_part_px, const cv::Mat& rgb = cv::Mat
   cv::Mat keep;
   // Holes filled first: the part rule judges a part's shape by its outline (lungs and cavities
   // would make a torso look like a band).
-  cv::dilate(body_parts(fill_holes(soft > 0.5f), rule, nullptr, rgb8), keep,
+  PartCounts counts;
+  cv::dilate(body_parts(fill_holes(soft > 0.5f), rule, &counts, rgb8), keep,
              cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(5, 5)));
   soft.setTo(cv::Scalar(0.0), keep == 0);
+  if (parts) *parts = counts.kept;
   return soft;
 }
 
@@ -291,7 +294,9 @@ nlohmann::json to_json(const AnchorEstimate& a) {
           {"body_fraction", a.body_fraction},
           {"radius_px", a.radius_px},
           {"lever_px", a.lever_px},
-          {"sigma_px", a.sigma_px}};
+          {"sigma_px", a.sigma_px},
+          {"parts_ct", a.parts_ct},
+          {"parts_colour", a.parts_colour}};
 }
 
 AnchorEstimate anchor_from_json(const nlohmann::json& j, const std::string& what) {
@@ -306,6 +311,8 @@ AnchorEstimate anchor_from_json(const nlohmann::json& j, const std::string& what
     a.radius_px = j.at("radius_px").get<double>();
     a.lever_px = j.value("lever_px", a.radius_px);
     a.sigma_px = j.at("sigma_px").get<double>();
+    a.parts_ct = j.value("parts_ct", 0);  // records before issue #30 have none
+    a.parts_colour = j.value("parts_colour", 0);
     if (!(a.confidence >= 0.0 && a.confidence <= 1.0) || !(a.sigma_px >= 0.0) ||
         !std::isfinite(a.transform.dx_px) || !std::isfinite(a.transform.dy_px) ||
         !std::isfinite(a.transform.rotation_deg))
@@ -335,11 +342,16 @@ AnchorEstimate estimate_ct_anchor(const RegisterFrame& frame, const cv::Mat& ct_
     // Only the body takes part: what the CT shows around it (head-holder, table) has no
     // counterpart in the colour slice and, beside a small body at the stack's ends, biases the
     // alignment (rotation most). Everything outside the body (grown by one pixel, its partial-
-    // volume edge) becomes air.
+    // volume edge) becomes air; in that edge, what is denser than the threshold is not the
+    // body's partial volume but a holder or table touching it (an arm resting on the table):
+    // clamped to the threshold.
     cv::Mat keep;
-    cv::dilate(ct_body_mask(ct32, options.hu_threshold, options.min_part_ct_px), keep,
-               cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(3, 3)));
+    const cv::Mat body = ct_body_mask(ct32, options.hu_threshold, options.min_part_ct_px);
+    cv::dilate(body, keep, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(3, 3)));
     ct32.setTo(cv::Scalar(kHuLow), keep == 0);
+    const cv::Mat edge = keep & ~body;
+    cv::Mat clamped = cv::min(ct32, options.hu_threshold);
+    clamped.copyTo(ct32, edge);
   }
   const cv::Matx23d out_to_ct =
       invert_affine(similarity_matrix(ct_to_rgb, image_centre(ct32.size()), c_full));
@@ -387,9 +399,11 @@ AnchorEstimate estimate_ct_anchor(const RegisterFrame& frame, const cv::Mat& ct_
   const cv::Mat soft_ct = [&] {
     cv::Mat s;
     ct_work.convertTo(s, CV_32F, 1.0 / 600.0, -(options.hu_threshold - 300.0) / 600.0);
-    return body_only(cv::Mat(cv::max(cv::min(s, 1.0), 0.0)), min_part_work);
+    return body_only(cv::Mat(cv::max(cv::min(s, 1.0), 0.0)), min_part_work, cv::Mat(),
+                     &est.parts_ct);
   }();
-  const cv::Mat soft_colour = body_only(colour_softbody(colour), min_part_work, colour);
+  const cv::Mat soft_colour =
+      body_only(colour_softbody(colour), min_part_work, colour, &est.parts_colour);
   auto fine = [&](cv::Matx23d start, double* rho_out) -> std::optional<cv::Matx23d> {
     // Two passes: half working resolution, then full; the polynomial refitted before each.
     double rho = -1.0;

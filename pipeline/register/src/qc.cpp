@@ -42,6 +42,21 @@ cv::Mat draw_ct_overlay(const cv::Mat& registered, const cv::Mat& ct_hu,
   return out;
 }
 
+std::vector<int> abrupt_anchor_changes(const std::vector<std::optional<AnchorEstimate>>& anchors) {
+  std::vector<int> out;
+  const AnchorEstimate* previous = nullptr;
+  for (std::size_t k = 0; k < anchors.size(); ++k) {
+    if (!anchors[k]) continue;
+    const AnchorEstimate& a = *anchors[k];
+    if (previous && (std::abs(a.parts_ct - previous->parts_ct) >= kAbruptParts ||
+                     std::abs(a.parts_colour - previous->parts_colour) >= kAbruptParts ||
+                     std::abs(a.confidence - previous->confidence) >= kAbruptConfidence))
+      out.push_back(int(k));
+    previous = &a;
+  }
+  return out;
+}
+
 cv::Mat plot_transforms(const std::vector<SliceTransform>& slices,
                         const std::vector<std::optional<AnchorEstimate>>& anchors,
                         const std::vector<SliceOverride>& overrides, const std::string& title) {
@@ -53,6 +68,7 @@ cv::Mat plot_transforms(const std::vector<SliceTransform>& slices,
   const int n = int(slices.size());
   if (n == 0) return img;
   const char* names[3] = {"dx px", "dy px", "rotation deg"};
+  const std::vector<int> abrupt = abrupt_anchor_changes(anchors);
   auto value = [](const SliceTransform& s, int c) {
     return c == 0 ? s.rigid.dx_px : c == 1 ? s.rigid.dy_px : s.rigid.rotation_deg;
   };
@@ -86,6 +102,8 @@ cv::Mat plot_transforms(const std::vector<SliceTransform>& slices,
     for (const auto& s : slices)
       if (s.jump)
         cv::line(img, {px(s.index - 0.5), y0}, {px(s.index - 0.5), y1}, cv::Scalar(220, 0, 0), 1);
+    for (int k : abrupt)
+      cv::line(img, {px(k), y1 - 8}, {px(k), y1}, cv::Scalar(220, 0, 220), 2);
     for (const auto& o : overrides)
       cv::drawMarker(img, {px(o.index), y0 + 6}, cv::Scalar(255, 140, 0), cv::MARKER_TRIANGLE_DOWN,
                      10, 2);
@@ -104,7 +122,8 @@ cv::Mat plot_transforms(const std::vector<SliceTransform>& slices,
   }
   cv::putText(img,
               "line: solved transform; blue dots: CT anchors (darker = more confident, hollow < "
-              "0.2); red lines: jumps; orange marks: overrides",
+              "0.2); red lines: jumps; orange marks: overrides; magenta ticks: part count or "
+              "confidence changes abruptly",
               {left, height - 6}, cv::FONT_HERSHEY_SIMPLEX, 0.4, cv::Scalar(0, 0, 0), 1,
               cv::LINE_AA);
   return img;

@@ -91,12 +91,14 @@ cv::Mat recorded_picture(const Config& config, int k) {
 std::string pair_fingerprint(const Config& config, const std::vector<SliceFile>& files,
                              const std::vector<SliceFile>& ct_files, bool anchored, int k) {
   Fingerprint fp;
-  fp.text("pairs-v4");  // the record's layout and method version (v4: σ from the body size)
+  // The record's layout and method version (v4: σ from the body size; v5: every body part in the
+  // anchor, its part counts recorded).
+  fp.text("pairs-v5");
   fp.text(config_section_hash(config, {"register", "spacing_mm"}));
   for (int j = std::max(0, k - 4); j <= k; ++j)
     fp.file(files[std::size_t(j)].path);
   if (anchored) {
-    fp.text(config_section_hash(config, {"ct", "mask.hu_threshold"}));
+    fp.text(config_section_hash(config, {"ct", "mask.hu_threshold", "mask.min_part_mm2"}));
     const CtAtZ at = ct_at_colour_slice(config, int(ct_files.size()), k);
     const SliceFile* ct = at.inside() ? &ct_files[std::size_t(at.below)] : nullptr;
     fp.text(ct ? ct->path : "no CT slice");
@@ -335,6 +337,15 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
                                     ", ", n, " slices")));
     // Report.
     run.set_quality("anchor", so.anchor);
+    {
+      // Body parts each modality showed per anchored slice, and the slices to look at.
+      nlohmann::json parts = nlohmann::json::object();
+      for (int k = 0; k < n; ++k)
+        if (const auto& a = anchors[std::size_t(k)])
+          parts[std::to_string(k)] = {{"ct", a->parts_ct}, {"colour", a->parts_colour}};
+      run.set_quality("anchor_parts", parts);
+      run.set_quality("abrupt_anchor_changes", abrupt_anchor_changes(anchors));
+    }
     run.set_quality("frame", solved.frame);
     run.set_quality("fiducial_groups", solved.fiducial_groups);
     nlohmann::json warnings = nlohmann::json::array();

@@ -87,6 +87,10 @@ struct AnchorEstimate {
   // Nominal 1σ position error at confidence 1, colour pixels: the best case (0.05 working px);
   // the solve inflates it from the residuals where a stack's anchors do worse.
   double sigma_px = 0.0;
+  // Body parts each modality showed (the part rule's kept parts of the soft body maps at their
+  // half level; 0 where the anchor stopped before the capture). A count that changes abruptly
+  // from one slice to the next marks a slice to look at (register/qc.h).
+  int parts_ct = 0, parts_colour = 0;
 };
 nlohmann::json to_json(const AnchorEstimate& a);
 // Throws FormatError naming `what` on a malformed record.

@@ -4,7 +4,9 @@
 //                     outline hugs the colour body.
 //   plot_transforms   dx, dy and rotation of every slice over the stack: the solved curve,
 //                     the CT anchors as dots (filled by confidence, hollow when down-weighted
-//                     or unused), jumps as red lines, a person's overrides as orange marks.
+//                     or unused), jumps as red lines, a person's overrides as orange marks,
+//                     slices whose body part count or anchor confidence changes abruptly
+//                     (abrupt_anchor_changes) as magenta ticks under each panel.
 // Pure and thread-safe; images are RGB CV_8UC3 (write_image order).
 #pragma once
 
@@ -31,6 +33,13 @@ cv::Mat shrink_to_edge(const cv::Mat& image, int max_edge);
 cv::Mat draw_ct_overlay(const cv::Mat& registered, const cv::Mat& ct_hu,
                         const Similarity& ct_to_rgb, double hu_threshold, int max_edge = 512,
                         cv::Size grid = {});
+
+// Slices k whose anchor changes abruptly from the previous anchored slice: the CT's or the
+// colour's body part count by kAbruptParts or more, or the confidence by kAbruptConfidence or
+// more (an arm or a leg lost or found, a failed match). Sorted, each once.
+inline constexpr int kAbruptParts = 2;
+inline constexpr double kAbruptConfidence = 0.3;
+std::vector<int> abrupt_anchor_changes(const std::vector<std::optional<AnchorEstimate>>& anchors);
 
 // The transform curves (about 1200×900 px). `anchors[k]` is slice k's anchor (may be absent);
 // `overrides` marks slices a person corrected.
