@@ -3,6 +3,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <mutex>
 
@@ -150,6 +151,16 @@ StageResult MaskStageJob::finish() {
     run_.set_quality("mean_gel_colour", {gel_sum_[0] / gel_count_, gel_sum_[1] / gel_count_,
                                          gel_sum_[2] / gel_count_});
   if (counted > 0) run_.set_report("mask_ms_per_slice", compute_ns_.load() / 1e6 / counted);
+  // Issue 31: a stack with no body at all is a config mistake far more often than a volume of gel
+  // (printed even with --quiet: it changes what the output means).
+  nlohmann::json warnings = nlohmann::json::array();
+  if (counted > 0 && sum == 0.0) {
+    warnings.push_back(
+        cat("no body in any of the ", counted, " slices computed (every mask is empty): check ",
+            config_.ct ? "ct.slope, ct.intercept, " : "", "mask.hu_threshold and rgb.raw"));
+    std::fprintf(stderr, "vispack-mask: warning: %s\n", warnings.back().get<std::string>().c_str());
+  }
+  run_.set_report("warnings", warnings);
   return run_.finish();
 }
 
