@@ -26,13 +26,17 @@ namespace {
 constexpr int kSlices = 24;  // the tiny preset
 
 // The tiny phantom (CT, colour segmentation with a palette, a black and a duplicated slice) in
-// `dir`, its config patched with `patch` (JSON merge patch) and 8-slice bricks (three slabs).
-Config make_case(const test::TempDir& dir, const nlohmann::json& patch) {
+// `dir`, its config patched with `patch` (JSON merge patch) and 8-slice bricks (three slabs); with
+// `every` > 1 a CT and a segmentation slice only at every `every`-th colour slice (issue 31: the
+// CT interpolated along z, the labels from the nearest segmentation slice).
+Config make_case(const test::TempDir& dir, const nlohmann::json& patch, int every = 1) {
   phantom::PhantomOptions po;
   po.preset = "tiny";
   po.seed = 7;
   po.defects = true;
   po.quiet = true;
+  po.ct_every = every;
+  po.seg_every = every;
   phantom::make_phantom(dir.path(), po);
   auto j = nlohmann::json::parse(read_file(dir / "config.json"));
   j["pack"]["brick_edge"] = 8;
@@ -80,10 +84,10 @@ void expect_up_to_date(const std::map<std::string, StageResult>& results) {
 
 // Staged in one folder (one thread), streaming in another (three threads: slices finish out of
 // order); same products; then each kind of run finds the other's work up to date.
-void check_stream_equals_staged(const nlohmann::json& patch) {
+void check_stream_equals_staged(const nlohmann::json& patch, int every = 1) {
   test::TempDir staged_dir, stream_dir;
-  const Config staged = make_case(staged_dir, patch);
-  const Config stream = make_case(stream_dir, patch);
+  const Config staged = make_case(staged_dir, patch, every);
+  const Config stream = make_case(stream_dir, patch, every);
   auto s = run(staged, true, 1);
   auto t = run(stream, false, 3);
   for (const char* stage : {"mask", "labels"}) {
@@ -190,10 +194,12 @@ TEST(Stream, ChangedInputOrSectionRerunsWhatDependsOnIt) {
 // run's bytes and the second finds them; rewritten with the same bytes (a third shard solving at
 // the same time: a new mtime), it leaves every slab and stage up to date, as the merge and the
 // second pass show.
-TEST(Stream, ShardsThenMergeGiveTheWholeStackFile) {
+namespace {
+
+void check_shards_then_merge(int every) {
   test::TempDir staged_dir, dir;
-  const Config staged = make_case(staged_dir, nlohmann::json::object());
-  const Config config = make_case(dir, nlohmann::json::object());
+  const Config staged = make_case(staged_dir, nlohmann::json::object(), every);
+  const Config config = make_case(dir, nlohmann::json::object(), every);
   run(staged, true, 1);
   EXPECT_TRUE(PackStream::streamable(config, kSlices, {12, 24}));
   EXPECT_FALSE(PackStream::streamable(config, kSlices, {0, 12}));
@@ -243,6 +249,22 @@ TEST(Stream, ShardsThenMergeGiveTheWholeStackFile) {
     for (const auto& r : run_pipeline(config, options))
       EXPECT_EQ(r.processed, 0) << range << ": " << r.stage << " recomputed";
   }
+}
+
+}  // namespace
+
+TEST(Stream, ShardsThenMergeGiveTheWholeStackFile) {
+  check_shards_then_merge(1);
+}
+
+// Issue 31: a CT and a segmentation slice at every 3rd colour slice; the shards' interpolated CT,
+// masks, nearest-in-z labels and slabs give the whole-stack run's products byte for byte.
+TEST(Stream, ShardsThenMergeWithCtAndSegAtEveryThirdSlice) {
+  check_shards_then_merge(3);
+}
+
+TEST(Stream, SameFilesAsTheStagedRunWithCtAndSegAtEveryThirdSlice) {
+  check_stream_equals_staged(nlohmann::json::object(), 3);
 }
 
 TEST(Stream, ShardRangeHoldingPackAndVdbIsRefused) {

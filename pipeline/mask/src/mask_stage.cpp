@@ -3,6 +3,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <mutex>
 
@@ -147,6 +148,7 @@ StageResult MaskStageJob::finish() {
   run_.set_quality("parts_removed", removed);
   run_.set_quality("mean_coverage", counted ? sum / counted : 0.0);
   run_.set_quality("colour_only_slices", colour_only_.load());
+  std::string colour_only;  // how many slices had no CT, and why
   if (config_.ct) {
     // Slices of this run whose z lies outside the CT's z range: no CT, a colour-only mask.
     std::vector<int> outside, tips;
@@ -157,11 +159,26 @@ StageResult MaskStageJob::finish() {
     run_.set_quality("outside_ct_slices", outside);
     // Between two CT slices that do not show one body (a body's tip): colour-only masks.
     run_.set_quality("body_tip_slices", tips);
+    if (!outside.empty() || !tips.empty())
+      colour_only = cat(outside.size() + tips.size(), " slices have a colour-only mask (",
+                        outside.size(), " outside the CT's z range, ", tips.size(),
+                        " at a body's tip between a CT slice with body and one without)");
   }
   if (gel_count_ > 0)
     run_.set_quality("mean_gel_colour", {gel_sum_[0] / gel_count_, gel_sum_[1] / gel_count_,
                                          gel_sum_[2] / gel_count_});
   if (counted > 0) run_.set_report("mask_ms_per_slice", compute_ns_.load() / 1e6 / counted);
+  // Issue 31: a stack with no body at all is a config mistake far more often than a volume of gel
+  // (printed even with --quiet: it changes what the output means).
+  nlohmann::json warnings = nlohmann::json::array();
+  if (counted > 0 && sum == 0.0)
+    warnings.push_back(
+        cat("no body in any of the ", counted, " slices computed (every mask is empty): check ",
+            config_.ct ? "ct.slope, ct.intercept, " : "", "mask.hu_threshold and rgb.raw"));
+  if (!colour_only.empty()) warnings.push_back(colour_only);
+  for (const auto& w : warnings)
+    std::fprintf(stderr, "vispack-mask: warning: %s\n", w.get<std::string>().c_str());
+  run_.set_report("warnings", warnings);
   return run_.finish();
 }
 

@@ -141,6 +141,7 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
   // scrambled volume: the middle slice's samples tell (layout_check.h; one file read).
   if (n > 0)
     check_raw_layout(config.rgb, "rgb.raw.layout", files[std::size_t(n / 2)].path, config.path);
+  if (n > 0) check_raw_size(config.rgb, "rgb.raw", files[std::size_t(n / 2)].path, config.path);
   RegisterOptions reg = config.registration;
   if (!reg.enabled) reg.method = "none";
   if (reg.method != "phase+ecc" && reg.method != "phase" && reg.method != "none")

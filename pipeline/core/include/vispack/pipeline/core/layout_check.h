@@ -35,4 +35,16 @@ RawLayoutEvidence guess_raw_layout(const std::string& samples);
 void check_raw_layout(const SliceSource& source, const std::string& key, const std::string& path,
                       const std::string& config_path);
 
+// Width and height swapped: a slice read with the wrong row length keeps its horizontal
+// neighbours (mostly) but its vertical ones lie a row and (width − height) pixels apart. Over the
+// first channel of an 8-bit raw slice, v / h (mean |vertical| over mean |horizontal| neighbour
+// difference) above kSwappedRatio as configured and under kUnswappedRatio with width and height
+// exchanged says swapped (tiny phantom: 9.0 against 1.2). Throws ConfigError naming `key_prefix`
+// ("rgb.raw") .width and .height; does nothing for a square slice, another bit depth, a file of
+// another size, or a flat picture.
+inline constexpr double kSwappedRatio = 3.0;
+inline constexpr double kUnswappedRatio = 1.5;
+void check_raw_size(const SliceSource& source, const std::string& key_prefix,
+                    const std::string& path, const std::string& config_path);
+
 }  // namespace vispack::pipeline
