@@ -117,7 +117,7 @@ vol_name=$(basename "$vol_phantom")
 "$py" "$root/scripts/bench/pack_sweep.py" "$vol_phantom" "$res/pack.json" || fail "pack sweep failed"
 
 if [[ $quick == 0 ]]; then
-  # Issue 12: stored size against the OpenVDB export and zstd -3 of the raw level-0 bytes, and
+  # Stored size against the OpenVDB export and zstd -3 of the raw level-0 bytes, and
   # the work folder against the input, at the real slice size. Recorded in docs/BENCHMARKS.md
   # ("Stored size and intermediates", a section this script's report keeps as written).
   stamp "Stored size and intermediates: vhp phantom, ${VISPACK_BENCH_STORE_SLICES:-8} slices"
@@ -161,7 +161,7 @@ for item in $scale_list; do
 done
 
 if [[ $quick == 0 ]]; then
-  # Issue 12: the whole pipeline on 2048x1216 stacks past several brick rows (one and two
+  # The whole pipeline on 2048x1216 stacks past several brick rows (one and two
   # threads, CPU per slice), the pack stage against zstd -3 -T2, and peak memory as they grow.
   real_slices=${VISPACK_BENCH_REAL_SLICES:-128 256 512}
   stamp "Whole pipeline at the real slice size: 2048x1216, $real_slices slices (ping-pong stacks of vhp-raw-64)"
@@ -171,7 +171,7 @@ if [[ $quick == 0 ]]; then
     { tail -30 "$res/real_size.log"; fail "real-size pipeline runs failed"; }
 fi
 
-stamp "Stages one by one: time per slice on 1 and 2 threads, error against truth (issue 4)"
+stamp "Stages one by one: time per slice on 1 and 2 threads, error against truth"
 if [[ $quick == 1 ]]; then stage_phantom=$(phantom tiny tiny); else stage_phantom=$(phantom vhp-8 vhp 8); fi
 "$py" "$root/scripts/bench/stage_table.py" "$stage_phantom" "$res/stages.json" 2>"$res/stages.log" ||
   { cat "$res/stages.log"; fail "stage table failed"; }

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Runs each libFuzzer target for a while on its seed corpus (issue 7; docs/RELIABILITY.md).
+# Runs each libFuzzer target for a while on its seed corpus (docs/RELIABILITY.md).
 # Usage: scripts/fuzz.sh [--seconds N] [--build DIR] [TARGET ...]
 #   Builds DIR (default build-sanitize/, clang + ASan + UBSan + libFuzzer) if needed, writes each
 #   target's seed corpus with <target>_replay --seeds, then runs <target> for N seconds (default 30).

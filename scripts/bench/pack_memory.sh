@@ -1,6 +1,6 @@
 #!/bin/bash
 # Peak resident memory, CPU and wall time of `vispack-pack --force` against the slice count and the
-# brick edge (issue #12: peak <= one level-0 brick row + 300 MB, flat in the slice count), with an
+# brick edge (goal: peak <= one level-0 brick row + 300 MB, flat in the slice count), with an
 # optional baseline binary run interleaved with the current one (A B A B per setting).
 #
 # usage: scripts/bench/pack_memory.sh OUT_DIR "EDGES" PHANTOM_DIR... [-- BASELINE_PACK]

@@ -1,7 +1,7 @@
 """Table (markdown) and plot of scripts/bench/pack_memory.sh's CSV.
 
 usage: /usr/bin/python3 scripts/bench/pack_memory_plot.py pack_memory.csv OUT_DIR
-Budget per row (issue #12): dx * dy * edge * bytes per voxel (one level-0 brick row) + 300 MB.
+Budget per row (docs/GOALS.md §6): dx * dy * edge * bytes per voxel (one level-0 brick row) + 300 MB.
 Medians over repetitions; the plot needs matplotlib (a table only without it).
 """
 import csv

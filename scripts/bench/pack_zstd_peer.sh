@@ -1,5 +1,5 @@
 #!/bin/bash
-# The peer of issue #12's pack throughput goal: `zstd -3 -T2` of the raw level-0 bytes of a packed
+# The peer of the pack throughput goal (docs/GOALS.md §6): `zstd -3 -T2` of the raw level-0 bytes of a packed
 # file (every channel at level 0 as vispack-extract writes it, NRRD raw, concatenated), timed under
 # /usr/bin/time -v; appends one row to scripts/bench/pack_memory.sh's CSV (binary "zstd-3-T2").
 # usage: scripts/bench/pack_zstd_peer.sh FILE.vpk CSV [SCRATCH_DIR]

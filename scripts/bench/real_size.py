@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Issue 12's numbers at the real slice size: the whole pipeline (`vispack-run`) on stacks of
+"""The numbers at the real slice size: the whole pipeline (`vispack-run`) on stacks of
 2048x1216 colour slices growing past several brick rows, its CPU time per slice on one and two
 threads, the pack stage against `zstd -3 -T2` of the same level-0 bytes, and the peak memory of
 the whole run, of the pack stage and of the OpenVDB export as the stack grows.

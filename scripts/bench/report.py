@@ -98,7 +98,7 @@ class Report(StagesSection, RegistrationSection, PackSection, ViewerSection, Sca
                "each section.\n")
         self.w("SUMMARY_PLACEHOLDER\n")
 
-    # ---- stages against docs/GOALS.md §6 (issue 4) -----------------------------------
+    # ---- stages against docs/GOALS.md §6 -----------------------------------
 
     def kept_sections(self):
         """Sections of the current BENCHMARKS.md measured by hand (not by this script), marked

@@ -25,7 +25,7 @@ class PackSection:
                "`vispack-extract` writes them). `vispack-pack --config C --force --threads 2` per "
                f"setting, median of {p['reps']} runs; its time covers reading the mask/label "
                "intermediates (PNG), rebuilding the registered colour and the CT on the output grid "
-               "from the input slices (issue 12), building every pyramid level, statistics, checksums and "
+               "from the input slices, building every pyramid level, statistics, checksums and "
                "compression, so it does more than the peers, which only compress bytes already in "
                "memory/page cache. Throughput = level-0 raw MB / wall time. Every setting and every "
                f"peer below runs once per repetition, round-robin (interleaved), median of {p['reps']}"

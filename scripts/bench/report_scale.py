@@ -19,7 +19,7 @@ from report_common import OURS, fmt, load, loglog_fit, table  # noqa: E402
 class ScaleSection:
     def real_size(self):
         r = load(self.res, "real_size.json")
-        self.w("## Whole pipeline at the real slice size (issue #12)\n")
+        self.w("## Whole pipeline at the real slice size\n")
         if not r or not r["runs"]:
             self.w("Not measured.\n")
             return

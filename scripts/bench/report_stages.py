@@ -68,7 +68,7 @@ class StagesSection:
         rows.append(["mask"] + times("mask") + [f"IoU {e['iou']:.4f}", "≤ 30 ms/slice, IoU ≥ 0.99",
                                                 f"time {met(mask1 <= 0.030)}, IoU {met(e['iou'] >= 0.99)}"])
         rows.append(["labels"] + times("labels") + [f"{e['labels_equal_pct']:.3f} % equal away from edges",
-                     "no time goal; issue 4: exact with PNG segmentation",
+                     "no time goal; exact with PNG segmentation",
                      met(e["labels_equal_pct"] >= 100.0) if e["labels_equal_pct"] >= 99.5 else "**not met**"])
         pk2 = by[("pack", 2)]
         raw = z["raw_bytes"]

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Issue 4's table: each stage executable's time per slice on one and on two threads, with its
+"""The stage table: each stage executable's time per slice on one and on two threads, with its
 error against the phantom's truth, and `zstd -3 -T2` of the same raw bytes as the pack peer
 (run interleaved with three more two-thread pack runs).
 Usage: stage_table.py PHANTOM_DIR OUT_JSON

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 12, "store only what a scene needs": stored size of the packed file against the OpenVDB
+# "Store only what a scene needs": stored size of the packed file against the OpenVDB
 # export and `zstd -3` of the raw level-0 bytes, and the work folder against the input, at the
 # real slice size. Usage: scripts/bench/store_size.sh BIN_DIR WORK_DIR [SLICES] [OUT.json]
 #   BIN_DIR   folder with vispack-phantom, vispack-run, vispack-pack, vispack-extract
@@ -8,7 +8,7 @@
 # Prints a Markdown table; with OUT.json also writes the numbers as JSON. Needs zstd, python3.
 # Each variant is packed by `vispack-pack --force` from the same intermediates:
 #   default   pack.keep_outside_body "none" (colour 0, CT -1024 HU outside the body), no crop
-#   keep      "all" (the gel as registered: what the file held before issue 12)
+#   keep      "all" (the gel as registered: what the file held before the gel was cleared)
 #   crop      default + pack.crop_margin_px 16
 # raw level-0 bytes: every channel of the `keep` file at level 0 as vispack-extract writes it
 # (NRRD, raw encoding), concatenated; `zstd -3 -T1` of those bytes is the peer.
@@ -79,7 +79,7 @@ print("|---|---|---|")
 print("| packed, default (outside body cleared) | %s | %.2fx the OpenVDB export, %.2fx zstd -3 of the raw level-0 bytes |"
       % (mb(r["vpk_default"]), r["vpk_over_vdb"], r["vpk_over_zstd"]))
 print("| packed, crop_margin_px 16 | %s | %.2fx the default |" % (mb(r["vpk_crop"]), r["vpk_crop"] / r["vpk_default"]))
-print("| packed, keep_outside_body all (before issue 12) | %s | %.2fx the OpenVDB export |" % (mb(r["vpk_keep"]), r["vpk_keep"] / r["vdb"]))
+print("| packed, keep_outside_body all (before the gel was cleared) | %s | %.2fx the OpenVDB export |" % (mb(r["vpk_keep"]), r["vpk_keep"] / r["vdb"]))
 print("| OpenVDB export (body voxels only) | %s | |" % mb(r["vdb"]))
 print("| raw level-0 bytes (keep file, all channels) | %s | |" % mb(r["raw_level0"]))
 print("| zstd -3 -T1 of the raw level-0 bytes | %s | |" % mb(r["zstd3_raw_level0"]))

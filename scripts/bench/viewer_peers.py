@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""vispack's slice renderer against VTK's GPU ray caster, interleaved (issue 14): round by round,
+"""vispack's slice renderer against VTK's GPU ray caster, interleaved: round by round,
 one viewer_bench process (whole level 0, every --spv, median of FRAMES frames per row) then one
 vtk_peer.py process (every sample distance, median of FRAMES frames), REPS rounds (A B A B ...).
 Each row's frame time is the median over the rounds of the per-process medians; the PSNRs come from

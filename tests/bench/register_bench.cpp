@@ -2,7 +2,8 @@
 // slice pair (frame preparation + phase correlation + ECC at ecc_scale) with the error against a
 // known synthetic motion, and time per slice of the stage's work on a drifting stack (each
 // slice prepared once and registered against its two predecessors, compute_pairs) with the
-// chained error. Wall and CPU time. Prints tables (docs/BENCHMARKS.md "## Pipeline").
+// chained error. Wall and CPU time. Prints tables (docs/BENCHMARKS.md "Registration anchored on the
+// CT").
 //   build/bin/register_bench [--slices N]
 // The CT-anchored stack (issue #11): the same stack against a CT 2.84× coarser, every slice
 // prepared once, registered against two predecessors and anchored on its CT slice, then solved.

@@ -34,7 +34,8 @@ inline constexpr double kVdbLeafBytesVec3s = 6293;
 // memory-mapped .vpk (counted separately, VdbLevelEstimate::mapped_bytes: clean file pages that
 // the kernel counts as resident once read): the libraries (vispack-vdb --help peaks at 136 MB
 // resident), the leaf flags, decoded bricks. Measured: peak RSS of vispack-vdb minus the leaf and
-// mapped terms, 145 MB on the small phantom (docs/BENCHMARKS.md "vdb_memory" for the vhp ones).
+// mapped terms, 145 MB on the small phantom (docs/BENCHMARKS.md "OpenVDB export memory under a
+// budget" for the vhp ones).
 inline constexpr double kVdbFixedBytes = 160.0 * 1024 * 1024;
 
 // The estimate for one level.
