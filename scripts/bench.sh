@@ -76,15 +76,19 @@ else
 fi
 
 # A phantom folder, generated once per build folder (the same options give the same bytes).
+# A phantom folder is reused while its arguments and the generator that wrote it are the same
+# (a rebuilt vispack-phantom may write another config or other slices: the folder is remade).
+phantom_generator=$(sha256sum "$bin/vispack-phantom" | cut -c1-16)
 phantom() {  # phantom NAME PRESET [SLICES [EXTRA FLAGS...]]
   local dir=$work/data/$1 args=(--preset "$2" --seed 1)
   [[ -n ${3:-} ]] && args+=(--slices "$3")
   [[ $# -gt 3 ]] && args+=("${@:4}")
-  if [[ ! -f $dir/.complete || "$(cat "$dir/.complete")" != "${args[*]}" ]]; then
+  local key="${args[*]} generator $phantom_generator"
+  if [[ ! -f $dir/.complete || "$(cat "$dir/.complete")" != "$key" ]]; then
     rm -rf "$dir"
     "$bin/vispack-phantom" --out "$dir" "${args[@]}" --quiet >"$res/phantom-$1.log" 2>&1 ||
       { cat "$res/phantom-$1.log"; fail "vispack-phantom $1 failed"; }
-    echo "${args[*]}" >"$dir/.complete"
+    echo "$key" >"$dir/.complete"
   fi
   echo "$dir"
 }
