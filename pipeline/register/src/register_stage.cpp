@@ -127,6 +127,411 @@ void warn(const StageOptions& options, const std::string& message) {
   std::fprintf(stderr, "vispack-register: warning: %s\n", message.c_str());
 }
 
+// What the steps of one register run share: its inputs, options and StageRun, the records'
+// fingerprints, the bytes read, and the overlay pictures kept from the records' reads.
+struct RegisterRun {
+  RegisterRun(const Config& config_, const StageOptions& options_,
+              const std::vector<SliceFile>& files_, const RegisterOptions& reg_, bool anchored_,
+              const std::vector<SliceFile>& ct_files_, const std::vector<SliceOverride>& overrides_,
+              const std::vector<std::string>& z_warnings_, StageRun& run_)
+      : config(config_),
+        options(options_),
+        files(files_),
+        n(int(files_.size())),
+        reg(reg_),
+        anchored(anchored_),
+        ct_files(ct_files_),
+        overrides(overrides_),
+        z_warnings(z_warnings_),
+        run(run_),
+        range(run_.range()),
+        tpath(transforms_path(config_)) {}
+
+  const Config& config;
+  const StageOptions& options;
+  const std::vector<SliceFile>& files;  // the colour stack
+  const int n;
+  const RegisterOptions& reg;  // config.registration, method "none" when disabled
+  const bool anchored;         // CT anchors measured and used
+  const std::vector<SliceFile>& ct_files;
+  const std::vector<SliceOverride>& overrides;
+  const std::vector<std::string>& z_warnings;  // printed when the stage began
+  StageRun& run;
+  const SliceRange range;
+  const std::string tpath;  // <work>/register/transforms.json
+  std::optional<Similarity> ct_to_rgb;
+  AnchorOptions anchor_options;
+  std::vector<std::string> fingerprints;
+  std::atomic<std::uint64_t> bytes{0};
+  // The QC overlay's picture of each slice whose pairs this run computes, kept from that read
+  // (each colour slice decoded once per run, not again for its overlay). Bounded: larger ranges
+  // read their slices again. A sharded or records-only run also writes them with the records
+  // (the overlays may be drawn by a later run; a records-only run keeps none).
+  bool write_pictures = false, keep_small = false;
+  std::vector<cv::Mat> small;
+
+  const std::string& fingerprint(int k) {
+    std::string& f = fingerprints[std::size_t(k)];
+    if (f.empty()) f = pair_fingerprint(config, files, ct_files, anchored, k);
+    return f;
+  }
+};
+
+// Slice k read for its records (its size checked against the stack's), its overlay picture kept
+// or written, prepared for registration.
+RegisterFrame read_frame(RegisterRun& r, int k, cv::Size stack_size, double anchor_scale) {
+  const auto& files = r.files;
+  cv::Mat slice = read_slice(files[std::size_t(k)].path, r.config.rgb.raw);
+  if (slice.size() != stack_size)
+    throw InputError(cat(files[std::size_t(k)].path, ": slice is ", slice.cols, "x", slice.rows,
+                         ", the stack (", files[0].path, ") is ", stack_size.width, "x",
+                         stack_size.height));
+  r.bytes += slice.total() * slice.elemSize();
+  if ((r.keep_small || r.write_pictures) && k >= r.range.first && k < r.range.last) {
+    cv::Mat picture = overlay_picture(slice, kOverlayEdge);
+    if (r.write_pictures) write_work_image(picture_path(r.config, k), picture);
+    if (r.keep_small) r.small[std::size_t(k)] = std::move(picture);
+  }
+  return prepare_frame(slice, r.reg, anchor_scale);
+}
+
+// Slice k's CT anchor: none outside the CT's z range; between two CT slices (slice_z.h) the
+// nearest one, trusted less the farther it lies, or the CT interpolated to slice k's z
+// (register.ct_anchor_between).
+std::optional<AnchorEstimate> anchor_of(RegisterRun& r, int k, const RegisterFrame& f) {
+  const Config& config = r.config;
+  const CtAtZ at = ct_at_colour_slice(config, int(r.ct_files.size()), k);
+  if (!at.inside()) return std::nullopt;
+  const bool nearest = !at.exact() && r.reg.ct_anchor_between == "nearest";
+  const cv::Mat hu = nearest ? read_ct_hu(*config.ct, r.ct_files[std::size_t(at.nearest())].path)
+                             : ct_hu_at_colour_slice(config, r.ct_files, k);
+  r.bytes += hu.total() * 2;
+  AnchorEstimate est = estimate_ct_anchor(f, hu, *r.ct_to_rgb, r.anchor_options);
+  if (nearest) {
+    est.confidence *= std::max(0.0, 1.0 - 2.0 * at.distance_mm / ct_slice_spacing_mm(config));
+    est.ok = est.ok && est.confidence > 0.0;
+  }
+  return est;
+}
+
+// 1. The per-slice records (pairs + CT anchor) of the range that are missing or stale, written
+// to <work>/register/pairs/. Returns how many were computed.
+int measure_records(RegisterRun& r) {
+  const Config& config = r.config;
+  const SliceRange range = r.range;
+  make_directories(r.run.dir() + "/pairs");
+  int first_missing = range.last, last_missing = range.first - 1;
+  for (int k = range.first; k < range.last; ++k) {
+    if (r.options.force || !load_pairs(pairs_path(config, k), r.fingerprint(k))) {
+      first_missing = std::min(first_missing, k);
+      last_missing = std::max(last_missing, k);
+    }
+  }
+  if (first_missing > last_missing) return 0;
+  // Every slice must have the first slice's size (a slice replaced between runs).
+  const cv::Size stack_size = read_slice_size(r.files[0].path, config.rgb.raw);
+  const double anchor_scale = r.anchored ? anchor_working_scale(config) : 0.0;
+  auto frame = [&](int k) { return read_frame(r, k, stack_size, anchor_scale); };
+  std::function<std::optional<AnchorEstimate>(int, const RegisterFrame&)> anchor;
+  if (r.anchored && r.reg.method != "none")
+    anchor = [&](int k, const RegisterFrame& f) { return anchor_of(r, k, f); };
+  std::vector<SlicePairs> computed =
+      compute_pairs(first_missing, last_missing + 1, frame, r.reg, r.run.threads(), anchor);
+  for (const auto& p : computed) {
+    nlohmann::json j = to_json(p);
+    j["fingerprint"] = r.fingerprint(p.index);
+    if (r.write_pictures && range.contains(p.index))
+      j["picture"] = file_identity(picture_path(config, p.index));
+    write_file_atomic(pairs_path(config, p.index), j.dump(1) + "\n");
+  }
+  return int(computed.size());
+}
+
+// The anchor mode the solve uses: "ct" when anchored, "none" without registration or when
+// asked, else "fiducials" ("fiducials", or "auto" without CT).
+std::string solve_anchor_mode(const RegisterRun& r) {
+  if (r.anchored) return "ct";
+  if (r.reg.anchor == "none" || !r.reg.enabled) return "none";
+  return "fiducials";
+}
+
+// transforms.json, rewritten only on change. Compared in memory: shards that solve at the same
+// time (each register run that finds every record solves: on a cluster every per-slice shard
+// does, scripts/vispack-slurm) find the same text and leave the file alone; a shared temporary
+// name would let one remove the other's copy mid-compare. Two that both find it missing or stale
+// both write the same bytes, and what depends on the file is keyed on its bytes, not its mtime
+// (Fingerprint::content), so neither rewrite makes another shard's work stale.
+void write_transforms_if_changed(const std::string& tpath, const StackTransforms& st) {
+  bool same = false;
+  try {
+    same = fs::exists(tpath) && read_file(tpath) == transforms_text(st);
+  } catch (const std::exception&) {
+    same = false;
+  }
+  if (!same) write_transforms(tpath, st);
+}
+
+// The report's anchor figures (anchor mode "ct"): anchors used and down-weighted, the
+// confidence-weighted residual, weak anchors, and the slices without one and why (no CT at its
+// z, no body in that CT, or the alignment failed), with the warning that counts them.
+void report_ct_anchors(RegisterRun& r, const StackSolve& solved, const std::vector<SlicePairs>& all,
+                       nlohmann::json& warnings) {
+  nlohmann::json weak = nlohmann::json::array(), unanchored = nlohmann::json::array();
+  nlohmann::json outside_ct = nlohmann::json::array(), no_body = nlohmann::json::array(),
+                 failed = nlohmann::json::array();
+  double csum = 0, rsum2 = 0;
+  int cn = 0;
+  for (const auto& s : solved.slices) {
+    if (s.black || s.duplicate_of) continue;
+    const double conf = s.extra.value("anchor_confidence", 0.0);
+    if (conf == 0.0) {
+      unanchored.push_back(s.index);
+      const auto& a = all[std::size_t(s.index)].anchor;
+      (!a ? outside_ct : a->body_fraction < kAnchorMinBody ? no_body : failed).push_back(s.index);
+    } else if (conf < 0.3) {
+      weak.push_back({{"slice", s.index}, {"confidence", conf}});
+    }
+    if (s.extra.contains("anchor_residual_px") && conf > 0) {
+      const double res = s.extra["anchor_residual_px"].get<double>();
+      csum += conf, rsum2 += conf * res * res;
+      ++cn;
+    }
+  }
+  StageRun& run = r.run;
+  run.set_quality("anchors_used", solved.anchors_used);
+  run.set_quality("anchors_downweighted", solved.anchors_downweighted);
+  run.set_quality("anchor_residual_rms_px", cn ? std::sqrt(rsum2 / csum) : 0.0);
+  run.set_quality("low_confidence_anchors", weak);
+  run.set_quality("unanchored_slices", unanchored);
+  run.set_quality("unanchored_outside_ct", outside_ct);
+  run.set_quality("unanchored_no_body", no_body);
+  run.set_quality("unanchored_alignment_failed", failed);
+  if (!unanchored.empty())
+    warnings.push_back(cat(unanchored.size(), " slices have no CT anchor (", outside_ct.size(),
+                           " outside the CT's z range, ", no_body.size(),
+                           " with no body in the CT, ", failed.size(),
+                           " where the alignment failed); their transforms follow their "
+                           "neighbours"));
+}
+
+// The report's per-slice summary: quality (mean, min), jumps, black and duplicated slices, and
+// the CT's place in the output frame.
+void report_slices(RegisterRun& r, const StackTransforms& st) {
+  std::vector<int> jumps, blacks;
+  nlohmann::json duplicates = nlohmann::json::array();
+  double qsum = 0, qmin = 1;
+  int qn = 0;
+  for (const auto& s : st.slices) {
+    if (s.jump) jumps.push_back(s.index);
+    if (s.black) blacks.push_back(s.index);
+    if (s.duplicate_of) duplicates.push_back({s.index, *s.duplicate_of});
+    if (!s.black && !s.duplicate_of && s.index > 0)
+      qsum += s.quality, qmin = std::min(qmin, s.quality), ++qn;
+  }
+  StageRun& run = r.run;
+  run.set_quality("mean_quality", qn ? qsum / qn : 1.0);
+  run.set_quality("min_quality", qmin);
+  run.set_quality("jumps", jumps);
+  run.set_quality("black", blacks);
+  run.set_quality("duplicates", duplicates);
+  if (st.ct_to_rgb)
+    run.set_quality("ct_to_rgb", {{"scale", st.ct_to_rgb->scale},
+                                  {"rotation_deg", st.ct_to_rgb->rotation_deg},
+                                  {"dx_px", st.ct_to_rgb->dx_px},
+                                  {"dy_px", st.ct_to_rgb->dy_px},
+                                  {"defined_by",
+                                   "config (ct.pixel_spacing_mm, spacing_mm, "
+                                   "register.output_frame)"}});
+}
+
+// transforms.json's content: the solved slices on a grid of `size`, the frame, and the CT's place
+// in it (slice 0 is the reference unless the frame is the CT's).
+StackTransforms stack_transforms(const StackSolve& solved, cv::Size size,
+                                 const std::optional<Similarity>& ct_to_rgb) {
+  StackTransforms st;
+  st.width = size.width;
+  st.height = size.height;
+  st.center_px = {(size.width - 1) / 2.0, (size.height - 1) / 2.0};
+  st.slices = solved.slices;
+  st.extra["frame"] = solved.frame;
+  if (solved.frame == "ct") {
+    st.reference_slice.reset();
+  } else {
+    st.reference_slice = 0;
+  }
+  st.ct_to_rgb = ct_to_rgb;
+  return st;
+}
+
+// Body parts each modality showed per anchored slice, and the slices to look at.
+void report_anchor_parts(StageRun& run, const std::vector<std::optional<AnchorEstimate>>& anchors) {
+  nlohmann::json parts = nlohmann::json::object();
+  for (std::size_t k = 0; k < anchors.size(); ++k)
+    if (const auto& a = anchors[k])
+      parts[std::to_string(k)] = {{"ct", a->parts_ct}, {"colour", a->parts_colour}};
+  run.set_quality("anchor_parts", parts);
+  run.set_quality("abrupt_anchor_changes", abrupt_anchor_changes(anchors));
+}
+
+// 2. The solve, once every slice's record is present: transforms.json, the QC curves and the
+// report; else the report says how many records are still missing.
+void solve_records(RegisterRun& r) {
+  const Config& config = r.config;
+  const int n = r.n;
+  const auto& files = r.files;
+  StageRun& run = r.run;
+  std::vector<SlicePairs> all;
+  all.reserve(std::size_t(n));
+  for (int k = 0; k < n; ++k) {
+    auto p = load_pairs(pairs_path(config, k), r.fingerprint(k));
+    if (!p) break;
+    all.push_back(std::move(*p));
+  }
+  if (int(all.size()) != n || n == 0) {
+    run.set_report("waiting",
+                   cat(n - int(all.size()),
+                       " slices have no pair record yet; transforms.json is written when "
+                       "every shard has run"));
+    return;
+  }
+  const cv::Size size = read_slice_size(files[0].path, config.rgb.raw);
+  StackSolveOptions so;
+  so.jump_px = r.reg.jump_px;
+  so.overrides = r.overrides;
+  so.anchor = solve_anchor_mode(r);
+  StackSolve solved = solve_stack(all, size, so);
+  if (so.anchor == "fiducials" && solved.fiducial_groups == 0) {
+    so.anchor = "none";
+    solved = solve_stack(all, size, so);
+  }
+  std::vector<SliceTransform>& slices = solved.slices;
+  if (std::all_of(slices.begin(), slices.end(), [](const SliceTransform& t) { return t.black; }))
+    throw InputError(cat(config.rgb.dir, ": all ", n, " colour slices (pattern \"",
+                         config.rgb.pattern,
+                         "\") are black: nothing to register or pack; check rgb.dir, "
+                         "rgb.pattern and rgb.raw"));
+  for (int k = 0; k < n; ++k) {
+    slices[std::size_t(k)].number = files[std::size_t(k)].number;
+    slices[std::size_t(k)].file = fs::path(files[std::size_t(k)].path).filename().string();
+  }
+  const StackTransforms st = stack_transforms(solved, size, r.ct_to_rgb);
+  write_transforms_if_changed(r.tpath, st);
+  // The transform curves.
+  std::vector<std::optional<AnchorEstimate>> anchors(static_cast<std::size_t>(n));
+  for (int k = 0; k < n; ++k)
+    anchors[std::size_t(k)] = all[std::size_t(k)].anchor;
+  make_directories(run.dir() + "/qc");
+  write_image(run.dir() + "/qc/transforms.png",
+              plot_transforms(slices, anchors, r.overrides,
+                              cat(config.name, ": frame ", solved.frame, ", anchor ", so.anchor,
+                                  ", ", n, " slices")));
+  // Report.
+  run.set_quality("anchor", so.anchor);
+  report_anchor_parts(run, anchors);
+  run.set_quality("frame", solved.frame);
+  run.set_quality("fiducial_groups", solved.fiducial_groups);
+  nlohmann::json warnings = nlohmann::json::array();
+  if (so.anchor == "ct") {
+    report_ct_anchors(r, solved, all, warnings);
+  } else {
+    warnings.push_back(
+        so.anchor == "fiducials"
+            ? "no CT anchor: drift is tied to the fiducial tubes only; where no tube is seen, "
+              "absolute drift is not observable"
+            : "no CT and no fiducials: absolute drift is not observable; the transforms are "
+              "slice-to-slice estimates regularised towards no drift (window 100 slices), "
+              "slice 0 is the reference");
+  }
+  for (const auto& w : warnings)
+    warn(r.options, w.get<std::string>());
+  for (const auto& w : r.z_warnings)  // printed when the stage began
+    warnings.push_back(w);
+  run.set_report("warnings", warnings);
+  nlohmann::json over = nlohmann::json::array();
+  for (const auto& o : r.overrides)
+    over.push_back(to_json(o));
+  run.set_report("overrides", {{"file", r.reg.overrides}, {"slices", over}});
+  report_slices(r, st);
+}
+
+// Slice k's QC overlay (and, with work.write_registered, its full-size registered copy), unless
+// up to date: warped from the picture kept from the records' read when there is one, else from
+// the registered colour (intermediates.h registered_colour, the one implementation the later
+// stages call too).
+void write_slice_outputs(RegisterRun& r, const StackTransforms& st, const StackInputs& inputs,
+                         int k) {
+  const Config& config = r.config;
+  const auto& files = r.files;
+  const auto& ct_files = r.ct_files;
+  StageRun& run = r.run;
+  const bool write_registered = config.work.write_registered;
+  const SliceTransform& t = st.slices[std::size_t(k)];
+  const CtAtZ at = ct_at_colour_slice(config, int(ct_files.size()), k);
+  Fingerprint in_fp;
+  in_fp.file(files[std::size_t(k)].path)
+      .number(t.rigid.dx_px)
+      .number(t.rigid.dy_px)
+      .number(t.rigid.rotation_deg);
+  if (at.inside()) in_fp.file(ct_files[std::size_t(at.below)].path);
+  if (at.inside() && !at.exact())
+    in_fp.number(at.w_above).file(ct_files[std::size_t(at.above)].path);
+  const std::string in = in_fp.str();
+  const std::string out = registered_rgb_path(config, k);
+  const std::string overlay = run.slice_path("qc/overlay", k);
+  std::vector<std::string> outs = {overlay};
+  if (write_registered) outs.push_back(out);
+  if (run.up_to_date(k, in, outs)) {
+    run.skip(k);
+    return;
+  }
+  if (!write_registered) {
+    std::error_code ec;  // a copy from an earlier run must not outlive its transform
+    fs::remove(out, ec);
+  }
+  cv::Mat hu;
+  if (at.inside() && st.ct_to_rgb) hu = ct_hu_at_colour_slice(config, ct_files, k);
+  const Similarity ct_to_rgb = st.ct_to_rgb ? *st.ct_to_rgb : Similarity{};
+  cv::Mat kept = r.keep_small ? r.small[std::size_t(k)] : cv::Mat();
+  if (kept.empty() && !write_registered) kept = recorded_picture(config, k);
+  if (!kept.empty() && !write_registered) {
+    // The overlay warped from the kept picture: the same slice, transform and outline as
+    // below, without decoding and warping the full-size slice again.
+    const cv::Mat registered_small = warp_picture(kept, t.rigid, inputs.size());
+    write_work_image(overlay,
+                     draw_ct_overlay(registered_small, hu, ct_to_rgb, config.mask.hu_threshold,
+                                     kOverlayEdge, inputs.size()));
+    run.done(k, in, outs, 0);
+    return;
+  }
+  const cv::Mat registered = registered_colour(config, inputs, k);
+  if (write_registered) write_image(out, registered);  // the copy on request: zlib level 4
+  write_work_image(
+      overlay, draw_ct_overlay(registered, hu, ct_to_rgb, config.mask.hu_threshold, kOverlayEdge));
+  run.done(k, in, outs, registered.total() * registered.elemSize());
+}
+
+// 3. The registered slices and QC overlays of the range, once transforms.json covers the stack.
+// The registered colour is always computed for the overlay; written full size only with
+// work.write_registered (inspection copies cost disk, nothing reads them back).
+void write_registered_slices(RegisterRun& r) {
+  std::optional<StackTransforms> st;
+  try {
+    if (fs::exists(r.tpath)) st = read_transforms(r.tpath);
+  } catch (const std::exception&) {
+    st.reset();
+  }
+  if (!st || int(st->slices.size()) != r.n) return;
+  StackInputs inputs;
+  inputs.rgb = r.files;
+  inputs.ct = r.ct_files;
+  inputs.transforms = *st;
+  if (r.config.work.write_registered) make_directories(r.run.dir() + "/registered");
+  make_directories(r.run.dir() + "/qc");
+  parallel_for(r.range.size(), r.run.threads(), [&](std::int64_t i) {
+    write_slice_outputs(r, *st, inputs, r.range.first + int(i));
+  });
+}
+
 }  // namespace
 
 StageResult run_register_stage(const Config& config, const StageOptions& options) {
@@ -160,92 +565,23 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
   // The stage spreads slices over run.threads() workers: OpenCV's own pool stays off (with
   // --threads 1 too, so that one thread means one core, as a SLURM task of one CPU expects).
   ScopedOpenCvThreads opencv_threads(1);
-  const SliceRange range = run.range();
+  RegisterRun r(config, options, files, reg, anchored, ct_files, overrides, z_warnings, run);
   const auto t0 = std::chrono::steady_clock::now();
-  const std::optional<Similarity> ct_to_rgb =
-      config.ct ? std::optional<Similarity>(defined_ct_to_rgb(config)) : std::nullopt;
-  AnchorOptions anchor_options;
-  anchor_options.hu_threshold = config.mask.hu_threshold;
-  anchor_options.iterations = reg.ecc_iterations;
+  if (config.ct) r.ct_to_rgb = defined_ct_to_rgb(config);
+  r.anchor_options.hu_threshold = config.mask.hu_threshold;
+  r.anchor_options.iterations = reg.ecc_iterations;
   if (config.ct)
-    anchor_options.min_part_ct_px = config.mask.min_part_mm2 / (config.ct->pixel_spacing_mm[0] *
-                                                                config.ct->pixel_spacing_mm[1]);
+    r.anchor_options.min_part_ct_px = config.mask.min_part_mm2 / (config.ct->pixel_spacing_mm[0] *
+                                                                  config.ct->pixel_spacing_mm[1]);
+  r.fingerprints.resize(static_cast<std::size_t>(n));
+  r.write_pictures = run.sharded() || options.records_only;
+  r.keep_small =
+      !options.records_only && std::int64_t(r.range.size()) * kOverlayEdge * kOverlayEdge * 3 <=
+                                   std::int64_t(kSmallCacheBytes);
+  r.small.resize(r.keep_small ? std::size_t(n) : 0);
 
   // 1. Per-slice records of the range.
-  make_directories(run.dir() + "/pairs");
-  std::vector<std::string> fingerprints(static_cast<std::size_t>(n));
-  auto fingerprint = [&](int k) {
-    std::string& f = fingerprints[std::size_t(k)];
-    if (f.empty()) f = pair_fingerprint(config, files, ct_files, anchored, k);
-    return f;
-  };
-  int first_missing = range.last, last_missing = range.first - 1;
-  for (int k = range.first; k < range.last; ++k) {
-    if (options.force || !load_pairs(pairs_path(config, k), fingerprint(k))) {
-      first_missing = std::min(first_missing, k);
-      last_missing = std::max(last_missing, k);
-    }
-  }
-  std::atomic<std::uint64_t> bytes{0};
-  int pairs_computed = 0;
-  // The QC overlay's picture of each slice whose pairs this run computes, kept from that read
-  // (issue 12: each colour slice decoded once per run, not again for its overlay). Bounded:
-  // larger ranges read their slices again. A sharded or records-only run also writes them with
-  // the records (the overlays may be drawn by a later run; a records-only run keeps none).
-  const bool write_pictures = run.sharded() || options.records_only;
-  const bool keep_small =
-      !options.records_only && std::int64_t(range.size()) * kOverlayEdge * kOverlayEdge * 3 <=
-                                   std::int64_t(kSmallCacheBytes);
-  std::vector<cv::Mat> small(keep_small ? std::size_t(n) : 0);
-  if (first_missing <= last_missing) {
-    // Every slice must have the first slice's size (issue 7: a slice replaced between runs).
-    const cv::Size stack_size = read_slice_size(files[0].path, config.rgb.raw);
-    const double anchor_scale = anchored ? anchor_working_scale(config) : 0.0;
-    auto frame = [&](int k) {
-      cv::Mat slice = read_slice(files[std::size_t(k)].path, config.rgb.raw);
-      if (slice.size() != stack_size)
-        throw InputError(cat(files[std::size_t(k)].path, ": slice is ", slice.cols, "x", slice.rows,
-                             ", the stack (", files[0].path, ") is ", stack_size.width, "x",
-                             stack_size.height));
-      bytes += slice.total() * slice.elemSize();
-      if ((keep_small || write_pictures) && k >= range.first && k < range.last) {
-        cv::Mat picture = overlay_picture(slice, kOverlayEdge);
-        if (write_pictures) write_work_image(picture_path(config, k), picture);
-        if (keep_small) small[std::size_t(k)] = std::move(picture);
-      }
-      return prepare_frame(slice, reg, anchor_scale);
-    };
-    std::function<std::optional<AnchorEstimate>(int, const RegisterFrame&)> anchor;
-    if (anchored && reg.method != "none") {
-      anchor = [&](int k, const RegisterFrame& f) -> std::optional<AnchorEstimate> {
-        const CtAtZ at = ct_at_colour_slice(config, int(ct_files.size()), k);
-        if (!at.inside()) return std::nullopt;  // outside the CT's z range: no anchor
-        // Between two CT slices (slice_z.h): the nearest one, trusted less the farther it lies,
-        // or the CT interpolated to slice k's z (register.ct_anchor_between).
-        const bool nearest = !at.exact() && reg.ct_anchor_between == "nearest";
-        const cv::Mat hu = nearest
-                               ? read_ct_hu(*config.ct, ct_files[std::size_t(at.nearest())].path)
-                               : ct_hu_at_colour_slice(config, ct_files, k);
-        bytes += hu.total() * 2;
-        AnchorEstimate est = estimate_ct_anchor(f, hu, *ct_to_rgb, anchor_options);
-        if (nearest) {
-          est.confidence *= std::max(0.0, 1.0 - 2.0 * at.distance_mm / ct_slice_spacing_mm(config));
-          est.ok = est.ok && est.confidence > 0.0;
-        }
-        return est;
-      };
-    }
-    std::vector<SlicePairs> computed =
-        compute_pairs(first_missing, last_missing + 1, frame, reg, run.threads(), anchor);
-    for (const auto& p : computed) {
-      nlohmann::json j = to_json(p);
-      j["fingerprint"] = fingerprint(p.index);
-      if (write_pictures && range.contains(p.index))
-        j["picture"] = file_identity(picture_path(config, p.index));
-      write_file_atomic(pairs_path(config, p.index), j.dump(1) + "\n");
-    }
-    pairs_computed = int(computed.size());
-  }
+  const int pairs_computed = measure_records(r);
   const double pair_seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   run.set_report("pairs_computed", pairs_computed);
@@ -256,257 +592,21 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
   // the QC overlays come from the next run over the records. Were the shard that happens to
   // finish last to solve and draw its range's overlays (~2-5 s at 2048x1216), the measure
   // step's shards would differ by that much and the step take as long as the slowest.
-  const std::string tpath = transforms_path(config);
   if (options.records_only) {
     run.set_report("waiting",
                    cat("--records-only: ", pairs_computed, " pair records measured, ",
-                       range.size() - pairs_computed,
+                       r.range.size() - pairs_computed,
                        " up to date; the solve (transforms.json), the registered slices and the "
                        "QC overlays come from the next run over the records"));
-    run.add_bytes(bytes.load());
-    return run.finish(tpath);
+    run.add_bytes(r.bytes.load());
+    return run.finish(r.tpath);
   }
-
   // 2. Solve when every slice's record is present.
-  std::vector<SlicePairs> all;
-  all.reserve(std::size_t(n));
-  for (int k = 0; k < n; ++k) {
-    auto p = load_pairs(pairs_path(config, k), fingerprint(k));
-    if (!p) break;
-    all.push_back(std::move(*p));
-  }
-  if (int(all.size()) == n && n > 0) {
-    const cv::Size size = read_slice_size(files[0].path, config.rgb.raw);
-    StackSolveOptions so;
-    so.jump_px = reg.jump_px;
-    so.overrides = overrides;
-    if (anchored) {
-      so.anchor = "ct";
-    } else if (reg.anchor == "none" || !reg.enabled) {
-      so.anchor = "none";
-    } else {
-      so.anchor = "fiducials";  // "fiducials", or "auto" without CT
-    }
-    StackSolve solved = solve_stack(all, size, so);
-    if (so.anchor == "fiducials" && solved.fiducial_groups == 0) {
-      so.anchor = "none";
-      solved = solve_stack(all, size, so);
-    }
-    std::vector<SliceTransform>& slices = solved.slices;
-    if (std::all_of(slices.begin(), slices.end(), [](const SliceTransform& t) { return t.black; }))
-      throw InputError(cat(config.rgb.dir, ": all ", n, " colour slices (pattern \"",
-                           config.rgb.pattern,
-                           "\") are black: nothing to register or pack; check rgb.dir, "
-                           "rgb.pattern and rgb.raw"));
-    for (int k = 0; k < n; ++k) {
-      slices[std::size_t(k)].number = files[std::size_t(k)].number;
-      slices[std::size_t(k)].file = fs::path(files[std::size_t(k)].path).filename().string();
-    }
-    StackTransforms st;
-    st.width = size.width;
-    st.height = size.height;
-    st.center_px = {(size.width - 1) / 2.0, (size.height - 1) / 2.0};
-    st.slices = slices;
-    st.extra["frame"] = solved.frame;
-    if (solved.frame == "ct") {
-      st.reference_slice.reset();
-    } else {
-      st.reference_slice = 0;
-    }
-    st.ct_to_rgb = ct_to_rgb;
-    // Rewrite only on change. Compared in memory: shards that solve at the same time (each
-    // register run that finds every record solves: on a cluster every per-slice shard does,
-    // scripts/vispack-slurm) find the same text and leave the file alone; a shared temporary
-    // name would let one remove the other's copy mid-compare. Two that both find it missing or
-    // stale both write the same bytes, and what depends on the file is keyed on its bytes, not
-    // its mtime (Fingerprint::content), so neither rewrite makes another shard's work stale.
-    bool same = false;
-    try {
-      same = fs::exists(tpath) && read_file(tpath) == transforms_text(st);
-    } catch (const std::exception&) {
-      same = false;
-    }
-    if (!same) write_transforms(tpath, st);
-    // The transform curves.
-    std::vector<std::optional<AnchorEstimate>> anchors(static_cast<std::size_t>(n));
-    for (int k = 0; k < n; ++k)
-      anchors[std::size_t(k)] = all[std::size_t(k)].anchor;
-    make_directories(run.dir() + "/qc");
-    write_image(run.dir() + "/qc/transforms.png",
-                plot_transforms(slices, anchors, overrides,
-                                cat(config.name, ": frame ", solved.frame, ", anchor ", so.anchor,
-                                    ", ", n, " slices")));
-    // Report.
-    run.set_quality("anchor", so.anchor);
-    {
-      // Body parts each modality showed per anchored slice, and the slices to look at.
-      nlohmann::json parts = nlohmann::json::object();
-      for (int k = 0; k < n; ++k)
-        if (const auto& a = anchors[std::size_t(k)])
-          parts[std::to_string(k)] = {{"ct", a->parts_ct}, {"colour", a->parts_colour}};
-      run.set_quality("anchor_parts", parts);
-      run.set_quality("abrupt_anchor_changes", abrupt_anchor_changes(anchors));
-    }
-    run.set_quality("frame", solved.frame);
-    run.set_quality("fiducial_groups", solved.fiducial_groups);
-    nlohmann::json warnings = nlohmann::json::array();
-    if (so.anchor == "ct") {
-      nlohmann::json weak = nlohmann::json::array(), unanchored = nlohmann::json::array();
-      // Why a slice has no anchor (issue 31): no CT at its z, no body in that CT, or the
-      // alignment failed.
-      nlohmann::json outside_ct = nlohmann::json::array(), no_body = nlohmann::json::array(),
-                     failed = nlohmann::json::array();
-      double csum = 0, rsum2 = 0;
-      int cn = 0;
-      for (const auto& s : slices) {
-        if (s.black || s.duplicate_of) continue;
-        const double conf = s.extra.value("anchor_confidence", 0.0);
-        if (conf == 0.0) {
-          unanchored.push_back(s.index);
-          const auto& a = all[std::size_t(s.index)].anchor;
-          (!a                                  ? outside_ct
-           : a->body_fraction < kAnchorMinBody ? no_body
-                                               : failed)
-              .push_back(s.index);
-        } else if (conf < 0.3) {
-          weak.push_back({{"slice", s.index}, {"confidence", conf}});
-        }
-        if (s.extra.contains("anchor_residual_px") && conf > 0) {
-          const double r = s.extra["anchor_residual_px"].get<double>();
-          csum += conf, rsum2 += conf * r * r;
-          ++cn;
-        }
-      }
-      run.set_quality("anchors_used", solved.anchors_used);
-      run.set_quality("anchors_downweighted", solved.anchors_downweighted);
-      run.set_quality("anchor_residual_rms_px", cn ? std::sqrt(rsum2 / csum) : 0.0);
-      run.set_quality("low_confidence_anchors", weak);
-      run.set_quality("unanchored_slices", unanchored);
-      run.set_quality("unanchored_outside_ct", outside_ct);
-      run.set_quality("unanchored_no_body", no_body);
-      run.set_quality("unanchored_alignment_failed", failed);
-      if (!unanchored.empty())
-        warnings.push_back(cat(unanchored.size(), " slices have no CT anchor (", outside_ct.size(),
-                               " outside the CT's z range, ", no_body.size(),
-                               " with no body in the CT, ", failed.size(),
-                               " where the alignment failed); their transforms follow their "
-                               "neighbours"));
-    } else {
-      warnings.push_back(
-          so.anchor == "fiducials"
-              ? "no CT anchor: drift is tied to the fiducial tubes only; where no tube is seen, "
-                "absolute drift is not observable"
-              : "no CT and no fiducials: absolute drift is not observable; the transforms are "
-                "slice-to-slice estimates regularised towards no drift (window 100 slices), "
-                "slice 0 is the reference");
-    }
-    for (const auto& w : warnings)
-      warn(options, w.get<std::string>());
-    for (const auto& w : z_warnings)  // printed when the stage began
-      warnings.push_back(w);
-    run.set_report("warnings", warnings);
-    nlohmann::json over = nlohmann::json::array();
-    for (const auto& o : overrides)
-      over.push_back(to_json(o));
-    run.set_report("overrides", {{"file", reg.overrides}, {"slices", over}});
-    std::vector<int> jumps, blacks;
-    nlohmann::json duplicates = nlohmann::json::array();
-    double qsum = 0, qmin = 1;
-    int qn = 0;
-    for (const auto& s : slices) {
-      if (s.jump) jumps.push_back(s.index);
-      if (s.black) blacks.push_back(s.index);
-      if (s.duplicate_of) duplicates.push_back({s.index, *s.duplicate_of});
-      if (!s.black && !s.duplicate_of && s.index > 0)
-        qsum += s.quality, qmin = std::min(qmin, s.quality), ++qn;
-    }
-    run.set_quality("mean_quality", qn ? qsum / qn : 1.0);
-    run.set_quality("min_quality", qmin);
-    run.set_quality("jumps", jumps);
-    run.set_quality("black", blacks);
-    run.set_quality("duplicates", duplicates);
-    if (st.ct_to_rgb)
-      run.set_quality("ct_to_rgb", {{"scale", st.ct_to_rgb->scale},
-                                    {"rotation_deg", st.ct_to_rgb->rotation_deg},
-                                    {"dx_px", st.ct_to_rgb->dx_px},
-                                    {"dy_px", st.ct_to_rgb->dy_px},
-                                    {"defined_by",
-                                     "config (ct.pixel_spacing_mm, spacing_mm, "
-                                     "register.output_frame)"}});
-  } else {
-    run.set_report("waiting",
-                   cat(n - int(all.size()),
-                       " slices have no pair record yet; transforms.json is written when "
-                       "every shard has run"));
-  }
-
+  solve_records(r);
   // 3. Registered slices and QC overlays of the range, once transforms.json covers the stack.
-  std::optional<StackTransforms> st;
-  try {
-    if (fs::exists(tpath)) st = read_transforms(tpath);
-  } catch (const std::exception&) {
-    st.reset();
-  }
-  if (st && int(st->slices.size()) == n) {
-    // The registered colour (work_layout.h registered_colour, the one implementation the later
-    // stages call too) is always computed for the QC overlay; written full size only with
-    // work.write_registered (issue 12: inspection copies cost disk, nothing reads them back).
-    StackInputs inputs;
-    inputs.rgb = files;
-    inputs.ct = ct_files;
-    inputs.transforms = *st;
-    const bool write_registered = config.work.write_registered;
-    if (write_registered) make_directories(run.dir() + "/registered");
-    make_directories(run.dir() + "/qc");
-    parallel_for(range.size(), run.threads(), [&](std::int64_t i) {
-      const int k = range.first + int(i);
-      const SliceTransform& t = st->slices[std::size_t(k)];
-      const CtAtZ at = ct_at_colour_slice(config, int(ct_files.size()), k);
-      Fingerprint in_fp;
-      in_fp.file(files[std::size_t(k)].path)
-          .number(t.rigid.dx_px)
-          .number(t.rigid.dy_px)
-          .number(t.rigid.rotation_deg);
-      if (at.inside()) in_fp.file(ct_files[std::size_t(at.below)].path);
-      if (at.inside() && !at.exact())
-        in_fp.number(at.w_above).file(ct_files[std::size_t(at.above)].path);
-      const std::string in = in_fp.str();
-      const std::string out = registered_rgb_path(config, k);
-      const std::string overlay = run.slice_path("qc/overlay", k);
-      std::vector<std::string> outs = {overlay};
-      if (write_registered) outs.push_back(out);
-      if (run.up_to_date(k, in, outs)) {
-        run.skip(k);
-        return;
-      }
-      if (!write_registered) {
-        std::error_code ec;  // a copy from an earlier run must not outlive its transform
-        fs::remove(out, ec);
-      }
-      cv::Mat hu;
-      if (at.inside() && st->ct_to_rgb) hu = ct_hu_at_colour_slice(config, ct_files, k);
-      const Similarity ct_to_rgb = st->ct_to_rgb ? *st->ct_to_rgb : Similarity{};
-      cv::Mat kept = keep_small ? small[std::size_t(k)] : cv::Mat();
-      if (kept.empty() && !write_registered) kept = recorded_picture(config, k);
-      if (!kept.empty() && !write_registered) {
-        // The overlay warped from the kept picture: the same slice, transform and outline as
-        // below, without decoding and warping the full-size slice again.
-        const cv::Mat registered_small = warp_picture(kept, t.rigid, inputs.size());
-        write_work_image(overlay,
-                         draw_ct_overlay(registered_small, hu, ct_to_rgb, config.mask.hu_threshold,
-                                         kOverlayEdge, inputs.size()));
-        run.done(k, in, outs, 0);
-        return;
-      }
-      const cv::Mat registered = registered_colour(config, inputs, k);
-      if (write_registered) write_image(out, registered);  // the copy on request: zlib level 4
-      write_work_image(overlay, draw_ct_overlay(registered, hu, ct_to_rgb, config.mask.hu_threshold,
-                                                kOverlayEdge));
-      run.done(k, in, outs, registered.total() * registered.elemSize());
-    });
-  }
-  run.add_bytes(bytes.load());
-  return run.finish(tpath);
+  write_registered_slices(r);
+  run.add_bytes(r.bytes.load());
+  return run.finish(r.tpath);
 }
 
 }  // namespace vispack::pipeline
