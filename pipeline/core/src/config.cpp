@@ -306,6 +306,172 @@ std::vector<std::string> config_key_paths() {
   return out;
 }
 
+namespace {
+
+// The "ct" section (absent or null: no CT); `base` resolves its folder.
+void parse_ct_section(Section& top, Config& config, const std::string& base) {
+  if (top.has("ct") && !config.raw_json["ct"].is_null()) {
+    Section s = top.child("ct");
+    CtSource ct;
+    parse_source(s, ct, base, "ct_{n}.png", 1);
+    ct.pixel_spacing_mm = s.numbers<2>("pixel_spacing_mm", std::nullopt, 0.0, 1e6, true);
+    ct.slope = s.number("slope", 1.0, -1e6, 1e6);
+    if (ct.slope == 0) s.fail("slope", "must not be 0");
+    ct.intercept = s.number("intercept", -1024.0, -1e6, 1e6);
+    ct.slice_spacing_mm = s.number("slice_spacing_mm", config.spacing_mm[2], 0.0, 1e6, true);
+    ct.z_offset_mm = s.number("z_offset_mm", 0.0, -1e9, 1e9);
+    s.finish();
+    config.ct = ct;
+  } else {
+    top.find("ct");
+  }
+}
+
+// The "seg" section (absent or null: no segmentation).
+void parse_seg_section(Section& top, Config& config, const std::string& base) {
+  if (top.has("seg") && !config.raw_json["seg"].is_null()) {
+    Section s = top.child("seg");
+    SegSource seg;
+    parse_source(s, seg, base, "seg_{n}.png", 3);
+    seg.mode = s.choice("mode", {"colour", "id"}, "colour");
+    if (s.has("palette")) {
+      seg.palette = resolve(base, s.string("palette", std::nullopt));
+      require_file(s, "palette", seg.palette);
+    } else if (seg.mode == "colour") {
+      s.fail("palette", "missing (required in mode \"colour\")");
+    } else {
+      s.find("palette");
+    }
+    seg.tolerance = s.number("tolerance", 24.0, 0.0, 442.0);
+    seg.strict = s.boolean("strict", false);
+    if (s.has("slice_spacing_mm")) {
+      seg.slice_spacing_mm = s.number("slice_spacing_mm", std::nullopt, 0.0, 1e6, true);
+      seg.z_offset_mm = s.number("z_offset_mm", 0.0, -1e9, 1e9);
+    } else if (s.has("z_offset_mm")) {
+      s.fail("z_offset_mm",
+             "needs seg.slice_spacing_mm (without it segmentation slices are matched to colour "
+             "slices by file number)");
+    }
+    if (s.has("id_map")) {
+      if (seg.mode != "id") s.fail("id_map", "only allowed in mode \"id\"");
+      seg.id_map = resolve(base, s.string("id_map", std::nullopt));
+      require_file(s, "id_map", seg.id_map);
+    } else {
+      s.find("id_map");
+    }
+    s.finish();
+    config.seg = seg;
+  } else {
+    top.find("seg");
+  }
+}
+
+// The "register" section (checked against the CT section: anchor "ct" needs one).
+void parse_register_section(Section& top, Config& config, const std::string& base) {
+  Section s = top.child("register");
+  auto& r = config.registration;
+  r.enabled = s.boolean("enabled", true);
+  r.method = s.choice("method", {"phase", "phase+ecc", "none"}, "phase+ecc");
+  r.ecc_scale = s.number("ecc_scale", 0.5, 0.0, 1.0, true);
+  r.ecc_iterations = int(s.integer("ecc_iterations", 50, 1, 10000));
+  r.jump_px = s.number("jump_px", 6.0, 0.0, 1e6, true);
+  if (s.has("output_frame")) {
+    Section f = s.child("output_frame");
+    r.output_frame.rotation_deg = f.number("rotation_deg", 0.0, -360.0, 360.0);
+    r.output_frame.dx_px = f.number("dx_px", 0.0, -1e6, 1e6);
+    r.output_frame.dy_px = f.number("dy_px", 0.0, -1e6, 1e6);
+    f.finish();
+  } else {
+    s.find("output_frame");
+  }
+  r.anchor = s.choice("anchor", {"auto", "ct", "fiducials", "none"}, "auto");
+  r.ct_anchor_between = s.choice("ct_anchor_between", {"nearest", "interpolated"}, "nearest");
+  if (r.anchor == "ct" && !config.ct) s.fail("anchor", "\"ct\" needs a \"ct\" section (CT slices)");
+  if (s.has("overrides")) {
+    r.overrides = resolve(base, s.string("overrides", std::nullopt));
+    require_file(s, "overrides", r.overrides);
+  } else {
+    s.find("overrides");
+  }
+  s.finish();
+}
+
+void parse_mask_section(Section& top, Config& config) {
+  Section s = top.child("mask");
+  auto& m = config.mask;
+  m.hu_threshold = s.number("hu_threshold", -400.0, -2000.0, 5000.0);
+  m.opening_px = int(s.integer("opening_px", 1, 0, 64));
+  m.refine_gel = s.boolean("refine_gel", true);
+  if (s.has("gel_colour")) {
+    auto c = s.numbers<3>("gel_colour", std::nullopt, 0.0, 255.0, false);
+    std::array<int, 3> gel{};
+    for (int i = 0; i < 3; ++i) {
+      if (c[i] != std::floor(c[i]))
+        s.fail_at(cat(s.key_path("gel_colour"), "[", i, "]"), "must be an integer");
+      gel[i] = int(c[i]);
+    }
+    m.gel_colour = gel;
+  } else {
+    s.find("gel_colour");
+  }
+  m.gel_distance = s.number("gel_distance", 40.0, 0.0, 442.0);
+  m.min_part_mm2 = s.number("min_part_mm2", 5.0, 0.0, 1e6);
+  s.finish();
+}
+
+void parse_pack_section(Section& top, Config& config) {
+  Section s = top.child("pack");
+  auto& p = config.pack;
+  p.brick_edge = int(s.integer("brick_edge", 64, 8, 256));
+  if ((p.brick_edge & (p.brick_edge - 1)) != 0)
+    s.fail("brick_edge", cat(p.brick_edge, " is not a power of two"));
+  p.zstd_level = int(s.integer("zstd_level", 3, 0, 22));
+  p.downsample = int(s.integer("downsample", 1, 1, 64));
+  p.threads = int(s.integer("threads", 0, 0, 4096));
+  const std::string keep = s.choice("keep_outside_body", {"none", "colour", "ct", "all"}, "none");
+  p.keep_colour_outside_body = keep == "colour" || keep == "all";
+  p.keep_ct_outside_body = keep == "ct" || keep == "all";
+  if (s.has("crop_margin_px")) {
+    if (config.raw_json["pack"]["crop_margin_px"].is_null()) {
+      s.find("crop_margin_px");  // null: no crop, as when absent
+    } else {
+      p.crop_margin_px = int(s.integer("crop_margin_px", std::nullopt, 0, 65536));
+    }
+  } else {
+    s.find("crop_margin_px");
+  }
+  s.finish();
+}
+
+void parse_work_section(Section& top, Config& config) {
+  Section s = top.child("work");
+  auto& w = config.work;
+  w.write_registered = s.boolean("write_registered", false);
+  w.write_ct = s.boolean("write_ct", false);
+  w.overlay_max_px = int(s.integer("overlay_max_px", 1024, 0, 65536));
+  if (w.overlay_max_px > 0 && w.overlay_max_px < 16)
+    s.fail("overlay_max_px", cat(w.overlay_max_px, " is too small (0 = full size, else >= 16)"));
+  s.finish();
+}
+
+void parse_vdb_section(Section& top, Config& config) {
+  Section s = top.child("vdb");
+  config.vdb.enabled = s.boolean("enabled", true);
+  if (const json* level = s.find("level"); level && !level->is_null()) {
+    if (level->is_string()) {
+      if (level->get<std::string>() != "auto")
+        s.fail("level",
+               cat("\"", level->get<std::string>(), "\" is not a level (0..15 or \"auto\")"));
+    } else {
+      config.vdb.level = int(s.integer("level", 0, 0, 15));
+    }
+  }
+  config.vdb.max_memory_mb = s.integer("max_memory_mb", 8192, 16, std::int64_t(1) << 30);
+  s.finish();
+}
+
+}  // namespace
+
 Config load_config(const std::string& path) {
   Config config;
   std::error_code ec;
@@ -343,155 +509,13 @@ Config load_config(const std::string& path) {
     parse_source(s, config.rgb, base, "rgb_{n}.png", 3);
     s.finish();
   }
-  if (top.has("ct") && !config.raw_json["ct"].is_null()) {
-    Section s = top.child("ct");
-    CtSource ct;
-    parse_source(s, ct, base, "ct_{n}.png", 1);
-    ct.pixel_spacing_mm = s.numbers<2>("pixel_spacing_mm", std::nullopt, 0.0, 1e6, true);
-    ct.slope = s.number("slope", 1.0, -1e6, 1e6);
-    if (ct.slope == 0) s.fail("slope", "must not be 0");
-    ct.intercept = s.number("intercept", -1024.0, -1e6, 1e6);
-    ct.slice_spacing_mm = s.number("slice_spacing_mm", config.spacing_mm[2], 0.0, 1e6, true);
-    ct.z_offset_mm = s.number("z_offset_mm", 0.0, -1e9, 1e9);
-    s.finish();
-    config.ct = ct;
-  } else {
-    top.find("ct");
-  }
-  if (top.has("seg") && !config.raw_json["seg"].is_null()) {
-    Section s = top.child("seg");
-    SegSource seg;
-    parse_source(s, seg, base, "seg_{n}.png", 3);
-    seg.mode = s.choice("mode", {"colour", "id"}, "colour");
-    if (s.has("palette")) {
-      seg.palette = resolve(base, s.string("palette", std::nullopt));
-      require_file(s, "palette", seg.palette);
-    } else if (seg.mode == "colour") {
-      s.fail("palette", "missing (required in mode \"colour\")");
-    } else {
-      s.find("palette");
-    }
-    seg.tolerance = s.number("tolerance", 24.0, 0.0, 442.0);
-    seg.strict = s.boolean("strict", false);
-    if (s.has("slice_spacing_mm")) {
-      seg.slice_spacing_mm = s.number("slice_spacing_mm", std::nullopt, 0.0, 1e6, true);
-      seg.z_offset_mm = s.number("z_offset_mm", 0.0, -1e9, 1e9);
-    } else if (s.has("z_offset_mm")) {
-      s.fail("z_offset_mm",
-             "needs seg.slice_spacing_mm (without it segmentation slices are matched to colour "
-             "slices by file number)");
-    }
-    if (s.has("id_map")) {
-      if (seg.mode != "id") s.fail("id_map", "only allowed in mode \"id\"");
-      seg.id_map = resolve(base, s.string("id_map", std::nullopt));
-      require_file(s, "id_map", seg.id_map);
-    } else {
-      s.find("id_map");
-    }
-    s.finish();
-    config.seg = seg;
-  } else {
-    top.find("seg");
-  }
-  {
-    Section s = top.child("register");
-    auto& r = config.registration;
-    r.enabled = s.boolean("enabled", true);
-    r.method = s.choice("method", {"phase", "phase+ecc", "none"}, "phase+ecc");
-    r.ecc_scale = s.number("ecc_scale", 0.5, 0.0, 1.0, true);
-    r.ecc_iterations = int(s.integer("ecc_iterations", 50, 1, 10000));
-    r.jump_px = s.number("jump_px", 6.0, 0.0, 1e6, true);
-    if (s.has("output_frame")) {
-      Section f = s.child("output_frame");
-      r.output_frame.rotation_deg = f.number("rotation_deg", 0.0, -360.0, 360.0);
-      r.output_frame.dx_px = f.number("dx_px", 0.0, -1e6, 1e6);
-      r.output_frame.dy_px = f.number("dy_px", 0.0, -1e6, 1e6);
-      f.finish();
-    } else {
-      s.find("output_frame");
-    }
-    r.anchor = s.choice("anchor", {"auto", "ct", "fiducials", "none"}, "auto");
-    r.ct_anchor_between = s.choice("ct_anchor_between", {"nearest", "interpolated"}, "nearest");
-    if (r.anchor == "ct" && !config.ct)
-      s.fail("anchor", "\"ct\" needs a \"ct\" section (CT slices)");
-    if (s.has("overrides")) {
-      r.overrides = resolve(base, s.string("overrides", std::nullopt));
-      require_file(s, "overrides", r.overrides);
-    } else {
-      s.find("overrides");
-    }
-    s.finish();
-  }
-  {
-    Section s = top.child("mask");
-    auto& m = config.mask;
-    m.hu_threshold = s.number("hu_threshold", -400.0, -2000.0, 5000.0);
-    m.opening_px = int(s.integer("opening_px", 1, 0, 64));
-    m.refine_gel = s.boolean("refine_gel", true);
-    if (s.has("gel_colour")) {
-      auto c = s.numbers<3>("gel_colour", std::nullopt, 0.0, 255.0, false);
-      std::array<int, 3> gel{};
-      for (int i = 0; i < 3; ++i) {
-        if (c[i] != std::floor(c[i]))
-          s.fail_at(cat(s.key_path("gel_colour"), "[", i, "]"), "must be an integer");
-        gel[i] = int(c[i]);
-      }
-      m.gel_colour = gel;
-    } else {
-      s.find("gel_colour");
-    }
-    m.gel_distance = s.number("gel_distance", 40.0, 0.0, 442.0);
-    m.min_part_mm2 = s.number("min_part_mm2", 5.0, 0.0, 1e6);
-    s.finish();
-  }
-  {
-    Section s = top.child("pack");
-    auto& p = config.pack;
-    p.brick_edge = int(s.integer("brick_edge", 64, 8, 256));
-    if ((p.brick_edge & (p.brick_edge - 1)) != 0)
-      s.fail("brick_edge", cat(p.brick_edge, " is not a power of two"));
-    p.zstd_level = int(s.integer("zstd_level", 3, 0, 22));
-    p.downsample = int(s.integer("downsample", 1, 1, 64));
-    p.threads = int(s.integer("threads", 0, 0, 4096));
-    const std::string keep = s.choice("keep_outside_body", {"none", "colour", "ct", "all"}, "none");
-    p.keep_colour_outside_body = keep == "colour" || keep == "all";
-    p.keep_ct_outside_body = keep == "ct" || keep == "all";
-    if (s.has("crop_margin_px")) {
-      if (config.raw_json["pack"]["crop_margin_px"].is_null()) {
-        s.find("crop_margin_px");  // null: no crop, as when absent
-      } else {
-        p.crop_margin_px = int(s.integer("crop_margin_px", std::nullopt, 0, 65536));
-      }
-    } else {
-      s.find("crop_margin_px");
-    }
-    s.finish();
-  }
-  {
-    Section s = top.child("work");
-    auto& w = config.work;
-    w.write_registered = s.boolean("write_registered", false);
-    w.write_ct = s.boolean("write_ct", false);
-    w.overlay_max_px = int(s.integer("overlay_max_px", 1024, 0, 65536));
-    if (w.overlay_max_px > 0 && w.overlay_max_px < 16)
-      s.fail("overlay_max_px", cat(w.overlay_max_px, " is too small (0 = full size, else >= 16)"));
-    s.finish();
-  }
-  {
-    Section s = top.child("vdb");
-    config.vdb.enabled = s.boolean("enabled", true);
-    if (const json* level = s.find("level"); level && !level->is_null()) {
-      if (level->is_string()) {
-        if (level->get<std::string>() != "auto")
-          s.fail("level",
-                 cat("\"", level->get<std::string>(), "\" is not a level (0..15 or \"auto\")"));
-      } else {
-        config.vdb.level = int(s.integer("level", 0, 0, 15));
-      }
-    }
-    config.vdb.max_memory_mb = s.integer("max_memory_mb", 8192, 16, std::int64_t(1) << 30);
-    s.finish();
-  }
+  parse_ct_section(top, config, base);
+  parse_seg_section(top, config, base);
+  parse_register_section(top, config, base);
+  parse_mask_section(top, config);
+  parse_pack_section(top, config);
+  parse_work_section(top, config);
+  parse_vdb_section(top, config);
   std::string default_vdb = fs::path(config.output).replace_extension(".vdb").string();
   std::string vdb_output = top.string("vdb_output", default_vdb);
   config.vdb_output = config.vdb.enabled ? resolve(base, vdb_output) : "";
