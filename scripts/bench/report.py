@@ -7,15 +7,10 @@ import os
 import re
 import sys
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import matplotlib.ticker  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import machine  # noqa: E402
-from report_common import load, table  # noqa: E402
+from report_common import load, plt, table  # noqa: E402
 from report_stages import StagesSection  # noqa: E402
 from report_registration import RegistrationSection  # noqa: E402
 from report_pack import PackSection  # noqa: E402

@@ -1,4 +1,4 @@
-"""Helpers shared by the sections of the benchmark report (report.py): loading results, number
+"""The one place the plotting backend is chosen (Agg), and helpers shared by the sections of the benchmark report (report.py): loading results, number
 formatting, Markdown tables, plot styles and axes, and the log-log fit."""
 import json
 import math
@@ -8,7 +8,10 @@ import numpy as np
 import matplotlib
 
 matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402  (the sections draw through it)
 import matplotlib.ticker  # noqa: E402
+
+__all__ = ["OURS", "PEER", "fmt", "load", "loglog_fit", "matplotlib", "plain_ticks", "plt", "table"]
 
 PEER = dict(color="crimson", marker="X", markersize=11, linestyle="--", linewidth=1.2)
 OURS = dict(marker="o", linewidth=1.5)

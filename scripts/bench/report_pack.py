@@ -2,13 +2,8 @@
 A section mixin of report.py's Report: self.w, self.save, self.res and the rest come from it."""
 import os
 
-import matplotlib
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import matplotlib.ticker  # noqa: E402
-
-from report_common import OURS, PEER, fmt, load, table  # noqa: E402
+from report_common import OURS, PEER, fmt, load, plt, table  # noqa: E402
 
 
 class PackSection:

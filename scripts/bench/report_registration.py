@@ -3,14 +3,9 @@ A section mixin of report.py's Report: self.w, self.save, self.res and the rest 
 import math
 import os
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import matplotlib.ticker  # noqa: E402
 
 from common import pair_error_px, rms  # noqa: E402
-from report_common import OURS, PEER, fmt, load, plain_ticks, table  # noqa: E402
+from report_common import OURS, PEER, fmt, load, plain_ticks, plt, table  # noqa: E402
 
 
 class RegistrationSection:

@@ -6,14 +6,9 @@ import os
 import re
 
 import numpy as np
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import matplotlib.ticker  # noqa: E402
 
 from common import median  # noqa: E402
-from report_common import OURS, fmt, load, loglog_fit, table  # noqa: E402
+from report_common import OURS, fmt, load, loglog_fit, plt, table  # noqa: E402
 
 
 class ScaleSection:

@@ -2,13 +2,8 @@
 A section mixin of report.py's Report: self.w, self.save, self.res and the rest come from it."""
 
 import numpy as np
-import matplotlib
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import matplotlib.ticker  # noqa: E402
-
-from report_common import fmt, load, loglog_fit, table  # noqa: E402
+from report_common import fmt, load, loglog_fit, plt, table  # noqa: E402
 
 
 class StagesSection:
