@@ -137,13 +137,16 @@ OmeZarrStats export_ome_zarr(const Reader& reader, const std::string& out_path,
             encoders[std::size_t(i)]->encode(brick, *run[k], results[std::size_t(i)][k]);
         });
         for (std::size_t i = 0; i < n; ++i) {
+          const auto& b = order[first + i];
+          const BrickInfo& brick = reader.brick(channel, level, b[0], b[1], b[2]);
           for (std::size_t k = 0; k < run.size(); ++k) {
             const EncodedChunk& c = results[i][k];
-            writers[k]->put(order[first + i], c.data(), c.size());
+            writers[k]->put(b, c.data(), c.size());
             stats.chunks_copied += c.how == EncodedChunk::How::kCopied;
             stats.chunks_encoded += c.how == EncodedChunk::How::kEncoded;
             stats.chunks_skipped += c.how == EncodedChunk::How::kSkipped;
           }
+          reader.release_payload_pages(brick);  // written: the memory stays at a few bricks
         }
         stats.bricks += n;
         progress.advance(std::int64_t(n));
