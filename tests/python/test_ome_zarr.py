@@ -120,14 +120,16 @@ class Export:
         with open(os.path.join(self.root, path, name)) as fh:
             return json.load(fh)
 
-    def read(self, path, tmp):
-        """The whole array through the independent reader."""
+    def read_all(self, paths, tmp):
+        """Whole arrays through the independent reader: {path: numpy array}."""
         if NGFF == "0.4":
-            return zarr.open_array(os.path.join(self.root, path), mode="r")[...]
-        out = os.path.join(tmp, "array.bin")
-        info = json.loads(run(["node", JS_READER, self.root, path, out]).stdout)
-        data = np.fromfile(out, V3_TYPES[info["data_type"]])
-        return data.reshape(info["shape"])
+            return {p: zarr.open_array(os.path.join(self.root, p), mode="r")[...] for p in paths}
+        infos = json.loads(run(["node", JS_READER, self.root, tmp, *paths]).stdout)
+        out = {}
+        for i, (path, info) in enumerate(zip(paths, infos)):
+            data = np.fromfile(os.path.join(tmp, f"{i}.bin"), V3_TYPES[info["data_type"]])
+            out[path] = data.reshape(info["shape"])
+        return out
 
 
 class OmeZarrTest(unittest.TestCase):
@@ -160,9 +162,11 @@ class OmeZarrTest(unittest.TestCase):
         return json.loads(run([tool("vispack-info"), vpk, "--json"]).stdout)["metadata"]
 
     def extract(self, vpk, channel, level):
-        out = os.path.join(self.tmp, f"ref_{channel}_{level}.nrrd")
-        run([tool("vispack-extract"), vpk, "--channel", channel, "--level", str(level),
-             "-o", out])
+        """vispack-extract's NRRD of one channel and level (once per file, channel and level)."""
+        out = os.path.join(self.tmp, f"{os.path.basename(vpk)}_{channel}_{level}.nrrd")
+        if not os.path.exists(out):
+            run([tool("vispack-extract"), vpk, "--channel", channel, "--level", str(level),
+                 "-o", out])
         return read_nrrd(out)
 
     # ---- metadata rules of OME-NGFF (0.4 and 0.5 "multiscales", "omero", labels) ----
@@ -275,6 +279,7 @@ class OmeZarrTest(unittest.TestCase):
                     ("ct/labels/labels" if "ct" in channels else "labels") for p in want]
         self.assertEqual(sorted(images), sorted(want))
         tmp = tempfile.mkdtemp(dir=self.tmp)
+        arrays = ex.read_all([f"{p}/{lv}" for p in images for lv in levels], tmp)
         checked = 0
         for path, im in images.items():
             attrs, ms = self.check_multiscales(ex, path, meta, levels)
@@ -292,7 +297,7 @@ class OmeZarrTest(unittest.TestCase):
                     ref = np.moveaxis(ref[..., :3], -1, 0)
                 elif im["kind"].startswith("alpha"):
                     ref = ref[..., 3]
-                got = ex.read(f"{path}/{level}", tmp)
+                got = arrays[f"{path}/{level}"]
                 self.assertEqual(got.shape, ref.shape, f"{path} level {level}")
                 self.assertEqual(got.dtype, ref.dtype, f"{path} level {level}")
                 self.assertTrue(np.array_equal(got, ref), f"{path} level {level} differs")
