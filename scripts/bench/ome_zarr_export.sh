@@ -25,12 +25,9 @@ root=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 timev=$root/scripts/bench/time_v.py
 mkdir -p "$work"
 work=$(realpath "$work")
-dir=$work/vhp-$slices
-if [[ ! -f $dir/.complete ]]; then
-  rm -rf "$dir"
-  "$bin/vispack-phantom" --out "$dir" --preset vhp --slices "$slices" --rgb-raw --seed 1 --quiet
-  touch "$dir/.complete"
-fi
+# shellcheck source=scripts/bench/vhp_phantom.sh
+source "$(dirname "${BASH_SOURCE[0]}")/vhp_phantom.sh"
+dir=$(vhp_phantom "$bin" "$work" "$slices")
 cfg=$dir/config.json
 vpk=$(python3 -c 'import json,os,sys; c=json.load(open(sys.argv[1])); print(os.path.normpath(os.path.join(os.path.dirname(sys.argv[1]), c["output"])))' "$cfg")
 if [[ ! -f $vpk ]]; then
