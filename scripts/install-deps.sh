@@ -16,12 +16,17 @@ packages=(
   openimageio-tools libopenvdb-tools zstd
   # the Python package (python/vispack): numpy, zstandard; xxhash (fast checksums), dask (tests)
   python3-numpy python3-zstandard python3-xxhash python3-dask
+  # readers of the OME-Zarr export vispack did not write (tests/python/test_ome_zarr.py):
+  # zarr-python for NGFF 0.4; node + npm for zarrita (NGFF 0.5, scripts/fetch-js-deps.sh)
+  python3-zarr nodejs
   # sample data fetch
   dpkg-dev xz-utils
   # the cluster test (tests/cluster/slurm_test.sh): a one-node SLURM, its authentication, and
   # Snakemake as the other front end (scripts/vispack-slurm, workflow/Snakefile)
   slurm-wlm munge snakemake
 )
+# Debian's nodejs has no npm; a node from elsewhere (NodeSource) brings its own.
+command -v npm >/dev/null || packages+=(npm)
 if [[ "${1:-}" == "--bench" ]]; then
   packages+=(gnuplot-nox elastix python3-vtk9 hyperfine valgrind time python3-matplotlib linux-perf)
 fi
@@ -31,8 +36,11 @@ for p in "${packages[@]}"; do
   status=$(dpkg-query -W -f='${Status}' "$p" 2>/dev/null || true)
   [[ "$status" == "install ok installed" ]] || missing+=("$p")
 done
+# The npm packages of the tests (tests/js/package.json): after the Debian ones, every run.
+fetch_js() { "$(dirname "${BASH_SOURCE[0]}")/fetch-js-deps.sh"; }
 if [[ ${#missing[@]} -eq 0 ]]; then
   echo "install-deps: all ${#packages[@]} packages present"
+  fetch_js
   exit 0
 fi
 
@@ -43,3 +51,4 @@ export DEBIAN_FRONTEND=noninteractive
 $SUDO apt-get update -q
 $SUDO apt-get install -y -q --no-install-recommends "${missing[@]}"
 echo "install-deps: done"
+fetch_js

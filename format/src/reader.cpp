@@ -728,6 +728,14 @@ ByteView Reader::payload(const BrickInfo& b) const {
   }
   return {impl_->base + b.offset, std::size_t(b.stored_size)};
 }
+void Reader::release_payload_pages(const BrickInfo& b) const {
+  const ByteView view = payload(b);
+  if (view.size == 0) return;
+  // A payload starts on a page and is zero-padded to the next one (SPEC.md "File layout"), so
+  // its pages hold no other payload. Advice only: a failure changes nothing but the memory use.
+  const std::size_t length = std::size_t(align_up(b.stored_size, kPayloadAlignment));
+  ::madvise(const_cast<std::uint8_t*>(view.data), length, MADV_DONTNEED);
+}
 void Reader::decode_brick(const BrickInfo& b, void* out, std::size_t out_size,
                           bool verify_checksum) const {
   const BrickInfo& own = brick(b.channel, b.level, b.brick[0], b.brick[1], b.brick[2]);

@@ -22,12 +22,9 @@ json_out=${4:-}
 command -v zstd >/dev/null || { echo "store_size.sh: zstd is missing" >&2; exit 1; }
 mkdir -p "$work"
 work=$(realpath "$work")
-dir=$work/vhp-$slices
-if [[ ! -f $dir/.complete ]]; then
-  rm -rf "$dir"
-  "$bin/vispack-phantom" --out "$dir" --preset vhp --slices "$slices" --rgb-raw --seed 1 --quiet
-  touch "$dir/.complete"
-fi
+# shellcheck source=scripts/bench/vhp_phantom.sh
+source "$(dirname "${BASH_SOURCE[0]}")/vhp_phantom.sh"
+dir=$(vhp_phantom "$bin" "$work" "$slices")
 cfg=$dir/config.json
 "$bin/vispack-run" "$cfg" --quiet >/dev/null
 

@@ -2,7 +2,8 @@
 # The pipeline's link graph (build/pipeline_link_graph.txt, written by pipeline/CMakeLists.txt:
 # each pipeline library and tool with everything it links, directly or through others) keeps the
 # libraries that read no image away from the image libraries: the core (config, paths, listing),
-# the pack merge and the OpenVDB export, and their tools vispack-merge and vispack-vdb. Also
+# the pack merge and the OpenVDB export, and their tools vispack-merge and vispack-vdb; the
+# format's OME-Zarr export (vispack_format_export, vispack-export: the reader alone). Also
 # checks that each stage tool links its own stage and no other stage (vispack-run links them
 # all). links_no_image_library.sh checks the same on the built executables (ldd); this test
 # says which CMake link brought an image library in.
@@ -37,6 +38,11 @@ forbid vispack_pipeline_pack_merge "$image|openvdb" "the merge reads slab files,
 forbid vispack-merge "$image|openvdb" "vispack-merge runs alone between cluster steps"
 forbid vispack_pipeline_vdb "$image" "the export reads the packed file, no image"
 forbid vispack-vdb "$image" "vispack-vdb runs once per shard"
+forbid vispack_format_export "$image|openvdb|vispack_format_writer|vispack_pipeline" \
+  "the OME-Zarr export reads the packed file through the reader alone"
+forbid vispack-export "$image|openvdb|vispack_format_writer|vispack_pipeline" \
+  "vispack-export is a reader tool, like vispack-extract without its image output"
+require vispack-export vispack_format_reader
 for stage in register mask labels pack vdb; do
   require "vispack-$stage" "vispack_pipeline_$stage"
   others=$(echo register mask labels pack vdb run | tr ' ' '\n' | grep -vx "$stage" | paste -sd'|')

@@ -1,6 +1,6 @@
 #!/bin/bash
 # The executables that read no image must link no image library: vispack-merge (also no OpenVDB)
-# and vispack-vdb. Both run as steps of a cluster chain (the merge alone between the shards and
+# and vispack-vdb, and vispack-export (OME-Zarr, over the format reader alone). The first two run as steps of a cluster chain (the merge alone between the shards and
 # the export, the export once per shard), and vispack-pack's start-up (the dynamic loader
 # resolving OpenImageIO's ~260 libraries) was 0.4 s of a 0.4-0.9 s merge on a small volume
 # (docs/BENCHMARKS.md). Fails naming the library, if an edit makes either's code reach an image
@@ -24,4 +24,6 @@ check() {  # TOOL FORBIDDEN_REGEX
 BIN=$1
 check vispack-merge 'OpenImageIO|opencv_imgcodecs|openvdb'
 check vispack-vdb 'OpenImageIO|opencv_imgcodecs'
+# The OME-Zarr export reads the packed file through the format's reader alone.
+check vispack-export 'OpenImageIO|opencv_imgcodecs|openvdb'
 exit $status

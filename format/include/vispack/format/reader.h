@@ -102,6 +102,12 @@ class Reader {
   std::optional<ByteView> raw_brick_view(const BrickInfo& brick) const;
   // The stored payload bytes of any brick (empty view for uniform bricks).
   ByteView payload(const BrickInfo& brick) const;
+  // Lets the kernel drop this process's mapping of the brick's payload pages (madvise
+  // MADV_DONTNEED; the pages stay in the page cache and a later read maps them again). For a
+  // reader that streams every brick once (the OME-Zarr export): its resident memory then stays
+  // at the bricks in flight, not the file's size. Views of the payload stay valid (they read
+  // the pages back). No effect on uniform bricks.
+  void release_payload_pages(const BrickInfo& brick) const;
 
   // Decodes one brick into `out` (at least brick_bytes(channel) bytes): edge^3 voxels, x
   // fastest, padding replicated from the last valid voxel on each axis. With verify_checksum
