@@ -11,6 +11,7 @@
 #include <memory>
 #include <random>
 
+#include "packed_volume.h"
 #include "synthetic_volume.h"
 #include "vispack/format/writer.h"
 #include "vispack/render/brick_reader.h"
@@ -31,18 +32,8 @@ std::filesystem::path temp_dir() {
 }
 
 std::shared_ptr<const VolumeSource> packed(const VolumeData& v, int edge, const std::string& name) {
-  format::WriterOptions o;
-  o.dims = v.geometry.dims;
-  o.spacing_mm = {v.geometry.spacing_mm.x, v.geometry.spacing_mm.y, v.geometry.spacing_mm.z};
-  o.brick_edge = edge;
-  o.threads = 1;
-  o.channels = {{"rgba", format::ChannelType::kRgba8},
-                {"ct", format::ChannelType::kInt16},
-                {"labels", format::ChannelType::kUint16}};
-  for (const Label& l : v.label_table)
-    o.label_table.push_back({l.id, l.name, l.colour});
   std::string path = (temp_dir() / name).string();
-  format::write_volume(path, o, {v.rgba.data(), v.ct.data(), v.labels.data()});
+  vispack::test::write_packed_volume(path, v, edge);
   return open_packed(path);
 }
 

@@ -399,11 +399,11 @@ int run_window(const ViewOptions& options) {
   glfwSwapInterval(1);
 
   State state;
-  state.params = options.params;
+  state.params = initial_params(options, *source);
   state.orbit = options.orbit;
-  state.params.label_colours = render::make_label_colours(source->labels(), options.label_opacity);
   std::vector<render::Label> labels = source->labels();
   render::LevelGeometry g0 = source->level(0);
+  render::Mode shown_mode = state.params.mode;
   glfwSetWindowUserPointer(window, &state);
   glfwSetMouseButtonCallback(window, on_button);
   glfwSetCursorPosCallback(window, on_move);
@@ -441,6 +441,10 @@ int run_window(const ViewOptions& options) {
     // Script: view changes run at once; wait/screenshot hold until the view is complete.
     apply_view_commands(script, next_command, state);
     if (!script.empty() && next_command >= script.size()) break;
+    if (state.params.mode != shown_mode) {  // a new mode starts from its defaults
+      apply_mode_defaults(state.params, options, g0.box());
+      shown_mode = state.params.mode;
+    }
     int fw = 1, fh = 1;
     glfwGetFramebufferSize(window, &fw, &fh);
     const FrameResult frame = draw_frame(state, g0, tree, cache, base_plan, renderer, fw, fh);

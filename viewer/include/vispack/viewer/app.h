@@ -9,6 +9,7 @@
 #include "vispack/render/brick_tree.h"
 #include "vispack/render/camera.h"
 #include "vispack/render/transfer.h"
+#include "vispack/render/view_defaults.h"
 
 namespace vispack::viewer {
 
@@ -16,7 +17,13 @@ struct ViewOptions {
   std::string file;
   std::string screenshot;  // empty: interactive window
   int width = 512, height = 512;
+  bool size_set = false;  // --size given (else the window sizes itself to the screen)
+  // params.mode and what the command line set; the values it did not set follow
+  // render::mode_defaults (initial_params resolves them, and the window again on a mode change).
   render::RenderParams params;
+  struct Given {
+    bool window = false, opacity = false, slices = false, clip = false, tf2d = false;
+  } given;
   render::OrbitParams orbit;   // target is the box centre plus orbit.pan_mm
   double label_opacity = 0.5;  // alpha of every label in the colour table (per Δ0)
   int level = -1;              // >= 0: draw only this level (bricked), or this whole level
@@ -36,6 +43,17 @@ struct ViewOptions {
 
 // Declares and parses every option (throws UsageError naming a bad value). Calls args.done().
 ViewOptions parse_view_options(Args& args);
+
+// Sets the values of `params` that `options` did not give to render::mode_defaults(params.mode):
+// the CT window, opacity, slice density, 2-D transfer function and the clip plane (the mode's
+// cut-away of `box`, the level-0 box, or none). The mode is params.mode.
+void apply_mode_defaults(render::RenderParams& params, const ViewOptions& options,
+                         const render::Box3& box);
+
+// The render parameters vispack-view draws `source` with at first (options, the mode's
+// defaults, the label colour table) and the orbit (target: the level-0 box centre).
+render::RenderParams initial_params(const ViewOptions& options, const render::VolumeSource& source);
+render::OrbitParams initial_orbit(const ViewOptions& options, const render::VolumeSource& source);
 
 // The brick plan options the view options ask for (--level, --lod, --max-gpu-mb).
 render::PlanOptions plan_options(const ViewOptions& options, int levels);
