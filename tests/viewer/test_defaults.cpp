@@ -8,6 +8,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -221,6 +222,58 @@ TEST_F(Defaults, NoWoodGrainAtTheDefaultDensity) {
     EXPECT_GE(d.psnr, 40.0) << mode;
     EXPECT_GT(d.body, 512 * 512 / 20) << mode;  // the body is drawn, not a sliver of it
   }
+}
+
+namespace {
+// Window pixel (x right, y down) of world point p seen by `cam` drawn into `area`.
+std::array<double, 2> window_pixel(const Camera& cam, const viewer::PixelRect& area, Vec3 p) {
+  const Mat4 vp = cam.view_projection();
+  double clip[4];
+  for (int r = 0; r < 4; ++r)
+    clip[r] = vp.m[0][r] * p.x + vp.m[1][r] * p.y + vp.m[2][r] * p.z + vp.m[3][r];
+  return {area.x + 0.5 * (clip[0] / clip[3] + 1) * area.width,
+          area.y + 0.5 * (1 - clip[1] / clip[3]) * area.height};
+}
+}  // namespace
+
+TEST_F(Defaults, TheFirstWindowShowsTheVolumeBesideThePanel) {
+  // The window without --size on a 1920x1080 screen, with the panel where it opens: the camera
+  // is fitted to the free area, so the whole volume box projects into it, centred, at a useful
+  // size. (Before, a 512x512 window drew the volume's centre at (256, 256), under the ~300x500
+  // panel at the top left.)
+  const viewer::PixelRect window = viewer::default_window_size(1920, 1080);
+  const viewer::PixelRect panel = viewer::initial_panel(window.width, window.height);
+  const viewer::PixelRect area = viewer::free_area(window.width, window.height, panel);
+  EXPECT_GE(window.width, 1280);
+  EXPECT_EQ(area.x, panel.x + panel.width);  // the strip right of the panel
+  EXPECT_EQ(area.width, window.width - panel.width);
+  const viewer::ViewOptions o = view_options({path_});
+  const Box3 box = data_->geometry.box();
+  const Camera cam = orbit_camera(viewer::initial_orbit(o, *source_), box, area.width, area.height);
+  double lo[2] = {1e300, 1e300}, hi[2] = {-1e300, -1e300};
+  for (int i = 0; i < 8; ++i) {
+    const auto q = window_pixel(cam, area, box.corner(i));
+    for (int a = 0; a < 2; ++a) {
+      lo[a] = std::min(lo[a], q[a]);
+      hi[a] = std::max(hi[a], q[a]);
+    }
+  }
+  const double cx = 0.5 * (lo[0] + hi[0]), cy = 0.5 * (lo[1] + hi[1]);
+  std::cout << "window " << window.width << "x" << window.height << ", panel " << panel.width
+            << " wide; volume box drawn over x " << lo[0] << ".." << hi[0] << ", y " << lo[1]
+            << ".." << hi[1] << "\n";
+  EXPECT_GE(panel.width, 240);                      // a readable panel
+  EXPECT_GE(lo[0], double(panel.x + panel.width));  // nothing of the volume under it
+  EXPECT_GE(lo[0], area.x);                         // all of the box in the free area
+  EXPECT_LE(hi[0], area.x + area.width);
+  EXPECT_GE(lo[1], area.y);
+  EXPECT_LE(hi[1], area.y + area.height);
+  EXPECT_NEAR(cx, area.x + 0.5 * area.width, 0.1 * area.width);  // centred in it
+  EXPECT_NEAR(cy, area.y + 0.5 * area.height, 0.1 * area.height);
+  EXPECT_GE(hi[1] - lo[1], 0.4 * area.height);  // and large: not a stamp in a corner
+  // The panel never takes more than a third of a small window.
+  const viewer::PixelRect small = viewer::initial_panel(600, 400);
+  EXPECT_EQ(viewer::free_area(600, 400, small).width, 400);
 }
 
 int main(int argc, char** argv) {

@@ -4,6 +4,7 @@
 
 #include <time.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <sstream>
@@ -290,6 +291,30 @@ render::OrbitParams initial_orbit(const ViewOptions& options, const render::Volu
   render::OrbitParams orbit = options.orbit;
   orbit.target = source.level(0).box().centre();
   return orbit;
+}
+
+PixelRect initial_panel(int window_width, int window_height) {
+  return {0, 0, std::min(kPanelWidth, window_width / 3), window_height};
+}
+
+PixelRect free_area(int width, int height, const PixelRect& panel) {
+  const int x0 = std::clamp(panel.x, 0, width), x1 = std::clamp(panel.x + panel.width, 0, width);
+  const int y0 = std::clamp(panel.y, 0, height), y1 = std::clamp(panel.y + panel.height, 0, height);
+  if (x1 <= x0 || y1 <= y0) return {0, 0, width, height};
+  const PixelRect strips[4] = {{0, 0, x0, height},
+                               {x1, 0, width - x1, height},
+                               {0, 0, width, y0},
+                               {0, y1, width, height - y1}};
+  PixelRect best{0, 0, 0, 0};
+  for (const PixelRect& r : strips)
+    if (std::int64_t(r.width) * r.height > std::int64_t(best.width) * best.height) best = r;
+  return best;
+}
+
+PixelRect default_window_size(int screen_w, int screen_h) {
+  if (screen_w <= 0 || screen_h <= 0) return {0, 0, 1280, 800};
+  return {0, 0, std::clamp(int(0.85 * screen_w), 640, 1600),
+          std::clamp(int(0.85 * screen_h), 480, 1000)};
 }
 
 render::PlanOptions plan_options(const ViewOptions& options, int levels) {
