@@ -274,7 +274,8 @@ TEST(Tf2d, TableLookupsAndSkipping) {
 TEST(LabelShading, ModulatedAndRamp) {
   Rgba c{0.8f, 0.4f, 0.2f, 0.5f};
   Rgba m = shade_label(c, LabelShading::kModulated, 0.5);
-  EXPECT_FLOAT_EQ(m.r, 0.4f);
+  EXPECT_FLOAT_EQ(m.r, 0.8f * 0.75f);  // k + (1 - k)·t with k = 0.5
+  EXPECT_FLOAT_EQ(shade_label(c, LabelShading::kModulated, 0.0).g, 0.4f * 0.5f);
   EXPECT_FLOAT_EQ(m.a, 0.5f);
   Rgba r0 = shade_label(c, LabelShading::kRamp, 0.0), r1 = shade_label(c, LabelShading::kRamp, 0.5),
        r2 = shade_label(c, LabelShading::kRamp, 1.0);

@@ -77,11 +77,12 @@ ViewOptions parse_view_options(Args& args) {
   bool ortho = args.flag("--ortho", "orthographic projection");
   auto pan = args.option("--pan", "X,Y,Z", "move camera and target by this vector (mm)");
   auto spv = args.option_double("--slices-per-voxel", "S",
-                                "slice density (default: colour, labels 4; ct 3; others 2)");
+                                "slice density (default: colour, labels 4; ct, tf2d 3; others 2)");
   auto opacity = args.option_double("--opacity", "A", "opacity scale per voxel (default 1)");
   std::string from = args.option("--opacity-from", "alpha|ct", "colour mode opacity", "alpha");
   auto window = args.option("--window", "CENTER:WIDTH",
-                            "CT window in HU (default: ct 600:800, others 300:1500)");
+                            "CT window in HU (default: ct 600:800, average -400:1200, "
+                            "labels 0:400, others 300:1500)");
   std::string ramp = args.option("--ramp", "NAME", "colour ramp: grey|bone|hot", "bone");
   auto iso = args.option_double("--iso", "HU", "isosurface threshold (default 300)");
   auto highlight = args.option_int("--highlight", "ID", "label to highlight (labels mode)");
@@ -90,7 +91,8 @@ ViewOptions parse_view_options(Args& args) {
       args.option("--label-shading", "flat|modulated|ramp",
                   "labels: segment colour modulated by CT/colour intensity", "flat");
   auto tf2d = args.option("--tf2d", "V0:V1:G0:G1:A",
-                          "tf2d mode: one widget, HU range, gradient range (HU/mm), opacity");
+                          "tf2d mode: one widget, HU range, gradient range (HU/mm), opacity "
+                          "(default: skin, soft-tissue and bone boundaries)");
   bool jitter = args.flag("--jitter", "jitter slice positions per pixel");
   auto mpr = args.option_double("--mpr-offset", "MM", "mpr plane offset from the target");
   auto clip = args.option("--clip", "NX,NY,NZ,D|off",

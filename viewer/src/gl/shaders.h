@@ -15,7 +15,8 @@ void main() {
 )";
 
 // Mode numbers follow render::Mode: 0 colour, 1 ct, 2 mip, 3 average, 4 iso, 5 labels, 6 mpr,
-// 7 tf2d. Label shading follows render::LabelShading: 0 flat, 1 modulated, 2 ramp.
+// 7 tf2d. Label shading follows render::LabelShading: 0 flat, 1 modulated, 2 ramp. The program
+// builder defines u_mode and K_MODULATED_FLOOR (render::kModulatedFloor) before compiling.
 inline constexpr const char* kSliceFragment = R"(#version 330 core
 in vec3 v_world;
 layout(location = 0) out vec4 o_colour;
@@ -91,7 +92,7 @@ float label_intensity(vec3 p) {
 }
 vec3 shade_label(vec3 c, float t) {
   t = clamp(t, 0.0, 1.0);
-  if (u_label_shading == 1) return c * t;
+  if (u_label_shading == 1) return c * (K_MODULATED_FLOOR + (1.0 - K_MODULATED_FLOOR) * t);
   if (t < 0.5) return c * (2.0 * t);
   return c + (vec3(1.0) - c) * (2.0 * t - 1.0);
 }

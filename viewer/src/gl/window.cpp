@@ -247,7 +247,7 @@ FrameResult draw_frame(const State& state, const render::LevelGeometry& g0,
 #ifdef VISPACK_HAVE_IMGUI
 // The Dear ImGui panel: its own state, and one function per section.
 struct Panel {
-  std::vector<render::Tf2dWidget> tf_widgets = {render::Tf2dWidget{}};
+  std::vector<render::Tf2dWidget> tf_widgets = render::mode_defaults(render::Mode::kTf2d).tf2d;
   char search[64] = "";
   float clip_offset = 0.0f;
 };
@@ -328,6 +328,7 @@ void panel_tf2d(State& state, Panel& panel) {
       w.colour = {c[0], c[1], c[2], c[3]};
       changed = true;
     }
+    changed |= ImGui::Checkbox("opacity rises with |gradient|", &w.gradient_weighted);
     if (ImGui::Button("remove")) {
       tf_widgets.erase(tf_widgets.begin() + std::ptrdiff_t(i));
       changed = true;

@@ -30,9 +30,9 @@ struct ModeDefaults {
 
 // colour, labels: cut away (photographs and labels are opaque from the skin in), 4 slices per
 // voxel; ct: a window that leaves skin, fat, muscle and the holder transparent and shows bone,
-// 3 slices per voxel; tf2d: boundary
-// widgets weighted by gradient magnitude; the others as before (mip, average, iso and mpr show
-// the inside by construction).
+// 3 slices per voxel; labels: a soft-tissue window (0:400 HU) for --label-shading; tf2d: boundary
+// widgets weighted by gradient magnitude, 3 slices per voxel; average: window −400:1200 HU; mip,
+// iso and mpr as before (they show the inside by construction).
 ModeDefaults mode_defaults(Mode mode);
 
 // A clip plane as RenderParams holds it: samples with dot(normal, x) > d are removed.
