@@ -41,12 +41,12 @@ render() {  # render NAME MODE [extra args]
       xvfb-run -a "$bin/vispack-view" "$packed" --mode "$mode" --screenshot "$out/$name.png" --size 640x480 "$@"
   fi
 }
-# An oblique view with the front quarter clipped away, so the cut face shows the inside.
-view=(--azimuth 35 --elevation 35)
-render render-colour colour "${view[@]}" --clip 0,-1,0,0
-render render-ct ct "${view[@]}"
-render render-labels labels "${view[@]}" --clip 0,-1,0,0
-render render-iso iso "${view[@]}"
+# The viewer's defaults: an oblique view, colour and labels with the front half cut away, CT
+# windowed to bone (docs/GOALS.md §4 "Viewer defaults").
+render render-colour colour
+render render-ct ct
+render render-labels labels
+render render-iso iso
 
 step "Done. Outputs:"
 cat <<TXT

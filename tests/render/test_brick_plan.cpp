@@ -11,6 +11,7 @@
 #include <memory>
 #include <random>
 
+#include "packed_volume.h"
 #include "synthetic_volume.h"
 #include "vispack/format/writer.h"
 #include "vispack/render/brick_reader.h"
@@ -31,18 +32,8 @@ std::filesystem::path temp_dir() {
 }
 
 std::shared_ptr<const VolumeSource> packed(const VolumeData& v, int edge, const std::string& name) {
-  format::WriterOptions o;
-  o.dims = v.geometry.dims;
-  o.spacing_mm = {v.geometry.spacing_mm.x, v.geometry.spacing_mm.y, v.geometry.spacing_mm.z};
-  o.brick_edge = edge;
-  o.threads = 1;
-  o.channels = {{"rgba", format::ChannelType::kRgba8},
-                {"ct", format::ChannelType::kInt16},
-                {"labels", format::ChannelType::kUint16}};
-  for (const Label& l : v.label_table)
-    o.label_table.push_back({l.id, l.name, l.colour});
   std::string path = (temp_dir() / name).string();
-  format::write_volume(path, o, {v.rgba.data(), v.ct.data(), v.labels.data()});
+  vispack::test::write_packed_volume(path, v, edge);
   return open_packed(path);
 }
 
@@ -283,7 +274,8 @@ TEST(Tf2d, TableLookupsAndSkipping) {
 TEST(LabelShading, ModulatedAndRamp) {
   Rgba c{0.8f, 0.4f, 0.2f, 0.5f};
   Rgba m = shade_label(c, LabelShading::kModulated, 0.5);
-  EXPECT_FLOAT_EQ(m.r, 0.4f);
+  EXPECT_FLOAT_EQ(m.r, 0.8f * 0.75f);  // k + (1 - k)·t with k = 0.5
+  EXPECT_FLOAT_EQ(shade_label(c, LabelShading::kModulated, 0.0).g, 0.4f * 0.5f);
   EXPECT_FLOAT_EQ(m.a, 0.5f);
   Rgba r0 = shade_label(c, LabelShading::kRamp, 0.0), r1 = shade_label(c, LabelShading::kRamp, 0.5),
        r2 = shade_label(c, LabelShading::kRamp, 1.0);

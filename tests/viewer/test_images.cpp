@@ -19,6 +19,7 @@
 #include "../render/synthetic_volume.h"
 #include "body_diff.h"
 #include "test_support.h"
+#include "viewer_test_support.h"
 #include "vispack/format/writer.h"
 #include "vispack/render/reference.h"
 #include "vispack/viewer/app.h"
@@ -34,22 +35,6 @@ using vispack::viewer::VolumeTextures;
 namespace {
 
 std::vector<char*> g_argv;
-
-// Writes `v` as a packed file (bricks of 16: dims 40x32x24 are not multiples of it).
-void write_packed(const std::string& path, const VolumeData& v) {
-  format::WriterOptions o;
-  o.dims = v.geometry.dims;
-  o.spacing_mm = {v.geometry.spacing_mm.x, v.geometry.spacing_mm.y, v.geometry.spacing_mm.z};
-  o.origin_mm = {v.geometry.origin_mm.x, v.geometry.origin_mm.y, v.geometry.origin_mm.z};
-  o.brick_edge = 16;
-  o.threads = 1;
-  o.channels = {{"rgba", format::ChannelType::kRgba8},
-                {"ct", format::ChannelType::kInt16},
-                {"labels", format::ChannelType::kUint16}};
-  for (const Label& l : v.label_table)
-    o.label_table.push_back({l.id, l.name, l.colour});
-  format::write_volume(path, o, {v.rgba.data(), v.ct.data(), v.labels.data()});
-}
 
 // GL frame against reference, over the body only (body_diff.h).
 using vispack::test::BodyDiff;
@@ -75,28 +60,14 @@ Image8 read_png_rgb(const std::string& path) {
 class GlFrames : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    try {
-      context_ = std::make_unique<HeadlessContext>();
-    } catch (const std::exception& e) {
-      std::cerr << "headless EGL failed: " << e.what() << "\n";
-      if (!std::getenv("VISPACK_XVFB_RETRY") && !g_argv.empty()) {
-        std::cerr << "retrying under xvfb-run -a\n";
-        setenv("VISPACK_XVFB_RETRY", "1", 1);
-        std::vector<char*> args = {const_cast<char*>("xvfb-run"), const_cast<char*>("-a")};
-        args.insert(args.end(), g_argv.begin(), g_argv.end());
-        args.push_back(nullptr);
-        std::fflush(nullptr);
-        execvp("xvfb-run", args.data());
-        std::cerr << "cannot run xvfb-run\n";
-      }
-      return;  // context_ stays null: every test fails in SetUp
-    }
+    context_ = vispack::test::make_gl_context(g_argv);
+    if (!context_) return;  // every test fails in SetUp
     std::cout << "GL: " << context_->description() << "\n";
     tmp_ = std::make_unique<vispack::test::TempDir>("vispack-viewer");
     dir_ = tmp_->path();
     original_ = synthetic::make_synthetic();
     path_ = (dir_ / "synthetic.vpk").string();
-    write_packed(path_, *original_);
+    vispack::test::write_packed_volume(path_, *original_, 16);  // dims not multiples of 16
     source_ = open_packed(path_);
     data_ = std::make_unique<VolumeData>(load_level(*source_, 0));
     renderer_ = std::make_unique<SliceRenderer>();
@@ -314,12 +285,9 @@ TEST_F(GlFrames, ViewerWritesAScreenshotAndRejectsBadFiles) {
     argv.push_back(w.data());
   Args args("vispack-view", int(argv.size()), argv.data());
   const viewer::ViewOptions o = viewer::parse_view_options(args);
-  RenderParams p = o.params;
-  p.label_colours = make_label_colours(data_->label_table, o.label_opacity);
-  OrbitParams orbit = o.orbit;
-  orbit.target = data_->geometry.box().centre();
-  p.mpr_target = orbit.target + orbit.pan_mm;
-  const Camera cam = orbit_camera(orbit, data_->geometry.box(), o.width, o.height);
+  const RenderParams p = viewer::initial_params(o, *source_);
+  const Camera cam =
+      orbit_camera(viewer::initial_orbit(o, *source_), data_->geometry.box(), o.width, o.height);
   const BodyDiff d = diff_in_body(shot, to_rgba8(render_reference(*data_, cam, p, {16})));
   std::cout << "screenshot: PSNR in body " << d.psnr << " dB, max diff " << d.max_diff << ", "
             << d.body << " body pixels\n";

@@ -4,6 +4,7 @@
 
 #include <time.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <sstream>
@@ -62,20 +63,26 @@ ViewOptions parse_view_options(Args& args) {
                 "Renders a packed volume with view-aligned slices. With --screenshot, renders one "
                 "frame headless (EGL, no X server needed) and exits; otherwise opens a window.");
   auto shot = args.option("--screenshot", "OUT.png", "render one frame headless to a PNG");
-  std::string size = args.option("--size", "WxH", "frame size in pixels", "512x512");
+  auto size_given = args.option(
+      "--size", "WxH", "frame size in pixels (default: 512x512; a window: fitted to the screen)");
   std::string mode =
       args.option("--mode", "M", "colour|ct|mip|average|iso|labels|mpr|tf2d", "colour");
-  auto az = args.option_double("--azimuth", "DEG", "orbit azimuth (0: looking along -y)");
-  auto el = args.option_double("--elevation", "DEG", "orbit elevation (+: from the head side)");
+  auto az =
+      args.option_double("--azimuth", "DEG", "orbit azimuth (0: looking along -y; default 35)");
+  auto el = args.option_double("--elevation", "DEG",
+                               "orbit elevation (+: from the head side; default 35)");
   auto dist = args.option_double("--distance", "MM", "camera distance from the target");
   auto zoom = args.option_double("--zoom", "F", "zoom factor (divides the fitted distance)");
   auto fov = args.option_double("--fov", "DEG", "vertical field of view (default 30)");
   bool ortho = args.flag("--ortho", "orthographic projection");
   auto pan = args.option("--pan", "X,Y,Z", "move camera and target by this vector (mm)");
-  auto spv = args.option_double("--slices-per-voxel", "S", "slice density (default 2)");
+  auto spv = args.option_double("--slices-per-voxel", "S",
+                                "slice density (default: colour, labels 4; ct, tf2d 3; others 2)");
   auto opacity = args.option_double("--opacity", "A", "opacity scale per voxel (default 1)");
   std::string from = args.option("--opacity-from", "alpha|ct", "colour mode opacity", "alpha");
-  auto window = args.option("--window", "CENTER:WIDTH", "CT window in HU (default 300:1500)");
+  auto window = args.option("--window", "CENTER:WIDTH",
+                            "CT window in HU (default: ct 600:800, average -400:1200, "
+                            "labels 0:400, others 300:1500)");
   std::string ramp = args.option("--ramp", "NAME", "colour ramp: grey|bone|hot", "bone");
   auto iso = args.option_double("--iso", "HU", "isosurface threshold (default 300)");
   auto highlight = args.option_int("--highlight", "ID", "label to highlight (labels mode)");
@@ -84,10 +91,13 @@ ViewOptions parse_view_options(Args& args) {
       args.option("--label-shading", "flat|modulated|ramp",
                   "labels: segment colour modulated by CT/colour intensity", "flat");
   auto tf2d = args.option("--tf2d", "V0:V1:G0:G1:A",
-                          "tf2d mode: one widget, HU range, gradient range (HU/mm), opacity");
+                          "tf2d mode: one widget, HU range, gradient range (HU/mm), opacity "
+                          "(default: skin, soft-tissue and bone boundaries)");
   bool jitter = args.flag("--jitter", "jitter slice positions per pixel");
   auto mpr = args.option_double("--mpr-offset", "MM", "mpr plane offset from the target");
-  auto clip = args.option("--clip", "NX,NY,NZ,D", "remove samples with n.x > D");
+  auto clip = args.option("--clip", "NX,NY,NZ,D|off",
+                          "remove samples with n.x > D (default: colour and labels cut away the "
+                          "front half, y > centre)");
   auto bg = args.option("--background", "R,G,B", "background colour in [0,1] (default black)");
   auto level = args.option_int("--level", "L", "draw only this pyramid level (default: by view)");
   bool whole = args.flag("--whole-level", "one texture per channel of one level (no paging)");
@@ -101,6 +111,7 @@ ViewOptions parse_view_options(Args& args) {
   args.done();
 
   if (shot) o.screenshot = *shot;
+  const std::string size = size_given.value_or("512x512");
   std::size_t x = size.find('x');
   std::vector<double> wh = parse_list(
       "--size", x == std::string::npos ? size : size.substr(0, x) + "," + size.substr(x + 1), ',',
@@ -109,11 +120,12 @@ ViewOptions parse_view_options(Args& args) {
     throw UsageError(cat("--size: '", size, "' must be WxH with 1..16384 pixels each"));
   o.width = int(wh[0]);
   o.height = int(wh[1]);
+  o.size_set = size_given.has_value();
   auto m = render::mode_from_name(mode);
   if (!m) throw UsageError(cat("--mode: unknown mode '", mode, "'"));
   o.params.mode = *m;
-  if (az) o.orbit.azimuth_deg = *az;
-  if (el) o.orbit.elevation_deg = *el;
+  o.orbit.azimuth_deg = az.value_or(render::kDefaultAzimuthDeg);
+  o.orbit.elevation_deg = el.value_or(render::kDefaultElevationDeg);
   if (dist) o.orbit.distance_mm = *dist;
   if (zoom) {
     if (!(*zoom > 0)) throw UsageError("--zoom must be > 0");
@@ -128,10 +140,12 @@ ViewOptions parse_view_options(Args& args) {
   if (spv) {
     if (!(*spv > 0 && *spv <= 64)) throw UsageError("--slices-per-voxel must be in (0, 64]");
     o.params.slices_per_voxel = *spv;
+    o.given.slices = true;
   }
   if (opacity) {
     if (!(*opacity >= 0)) throw UsageError("--opacity must be >= 0");
     o.params.opacity = *opacity;
+    o.given.opacity = true;
   }
   if (from != "alpha" && from != "ct") throw UsageError("--opacity-from must be alpha or ct");
   o.params.opacity_source =
@@ -140,6 +154,7 @@ ViewOptions parse_view_options(Args& args) {
     auto v = parse_list("--window", *window, ':', 2);
     o.params.window_center_hu = v[0];
     o.params.window_width_hu = v[1];
+    o.given.window = true;
   }
   o.params.ramp = render::make_ramp(ramp);
   if (iso) o.params.iso_hu = *iso;
@@ -159,10 +174,12 @@ ViewOptions parse_view_options(Args& args) {
     if (!(v[1] > v[0]) || !(v[3] >= v[2])) throw UsageError("--tf2d: needs V0 < V1 and G0 <= G1");
     o.params.tf2d = render::make_tf2d({w}, std::min(-1000.0, v[0]), std::max(2000.0, v[1]),
                                       std::max(400.0, v[3]));
+    o.given.tf2d = true;
   }
   o.params.jitter = jitter;
   if (mpr) o.params.mpr_offset_mm = *mpr;
-  if (clip) {
+  if (clip) o.given.clip = true;
+  if (clip && *clip != "off") {
     auto v = parse_list("--clip", *clip, ',', 4);
     o.params.clip = true;
     o.params.clip_normal = {v[0], v[1], v[2]};
@@ -242,6 +259,66 @@ int screenshot_whole_level(const ViewOptions& options, const render::VolumeSourc
 
 }  // namespace
 
+void apply_mode_defaults(render::RenderParams& params, const ViewOptions& options,
+                         const render::Box3& box) {
+  const render::ModeDefaults d = render::mode_defaults(params.mode);
+  if (!options.given.window) {
+    params.window_center_hu = d.window_center_hu;
+    params.window_width_hu = d.window_width_hu;
+  }
+  if (!options.given.opacity) params.opacity = d.opacity;
+  if (!options.given.slices) params.slices_per_voxel = d.slices_per_voxel;
+  if (!options.given.tf2d && !d.tf2d.empty()) params.tf2d = render::make_tf2d(d.tf2d);
+  if (!options.given.clip) {
+    params.clip = d.cut_away;
+    if (d.cut_away) {
+      const render::ClipPlane plane = render::cut_away_plane(box);
+      params.clip_normal = plane.normal;
+      params.clip_d = plane.d;
+    }
+  }
+}
+
+render::RenderParams initial_params(const ViewOptions& options,
+                                    const render::VolumeSource& source) {
+  render::RenderParams params = options.params;
+  const render::Box3 box = source.level(0).box();
+  apply_mode_defaults(params, options, box);
+  params.label_colours = render::make_label_colours(source.labels(), options.label_opacity);
+  params.mpr_target = box.centre() + options.orbit.pan_mm;
+  return params;
+}
+
+render::OrbitParams initial_orbit(const ViewOptions& options, const render::VolumeSource& source) {
+  render::OrbitParams orbit = options.orbit;
+  orbit.target = source.level(0).box().centre();
+  return orbit;
+}
+
+PixelRect initial_panel(int window_width, int window_height) {
+  return {0, 0, std::min(kPanelWidth, window_width / 3), window_height};
+}
+
+PixelRect free_area(int width, int height, const PixelRect& panel) {
+  const int x0 = std::clamp(panel.x, 0, width), x1 = std::clamp(panel.x + panel.width, 0, width);
+  const int y0 = std::clamp(panel.y, 0, height), y1 = std::clamp(panel.y + panel.height, 0, height);
+  if (x1 <= x0 || y1 <= y0) return {0, 0, width, height};
+  const PixelRect strips[4] = {{0, 0, x0, height},
+                               {x1, 0, width - x1, height},
+                               {0, 0, width, y0},
+                               {0, y1, width, height - y1}};
+  PixelRect best{0, 0, 0, 0};
+  for (const PixelRect& r : strips)
+    if (std::int64_t(r.width) * r.height > std::int64_t(best.width) * best.height) best = r;
+  return best;
+}
+
+PixelRect default_window_size(int screen_w, int screen_h) {
+  if (screen_w <= 0 || screen_h <= 0) return {0, 0, 1280, 800};
+  return {0, 0, std::clamp(int(0.85 * screen_w), 640, 1600),
+          std::clamp(int(0.85 * screen_h), 480, 1000)};
+}
+
 render::PlanOptions plan_options(const ViewOptions& options, int levels) {
   render::PlanOptions o;
   if (options.level >= 0) {
@@ -261,12 +338,9 @@ int run_screenshot(const ViewOptions& options) {
   std::shared_ptr<const render::VolumeSource> source =
       render::fill_lost_slices(render::open_packed(options.file));
   HeadlessContext context;
-  render::RenderParams params = options.params;
-  params.label_colours = render::make_label_colours(source->labels(), options.label_opacity);
-  render::LevelGeometry g0 = source->level(0);
-  render::OrbitParams orbit = options.orbit;
-  orbit.target = g0.box().centre();
-  params.mpr_target = orbit.target + orbit.pan_mm;
+  const render::RenderParams params = initial_params(options, *source);
+  const render::LevelGeometry g0 = source->level(0);
+  const render::OrbitParams orbit = initial_orbit(options, *source);
   render::Camera camera = render::orbit_camera(orbit, g0.box(), options.width, options.height);
   if (options.timings && !source->lost_slices().empty())
     std::fprintf(stderr, "%zu lost slices sampled across\n", source->lost_slices().size());

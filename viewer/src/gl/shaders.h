@@ -15,7 +15,8 @@ void main() {
 )";
 
 // Mode numbers follow render::Mode: 0 colour, 1 ct, 2 mip, 3 average, 4 iso, 5 labels, 6 mpr,
-// 7 tf2d. Label shading follows render::LabelShading: 0 flat, 1 modulated, 2 ramp.
+// 7 tf2d. Label shading follows render::LabelShading: 0 flat, 1 modulated, 2 ramp. The program
+// builder defines u_mode and K_MODULATED_FLOOR (render::kModulatedFloor) before compiling.
 inline constexpr const char* kSliceFragment = R"(#version 330 core
 in vec3 v_world;
 layout(location = 0) out vec4 o_colour;
@@ -91,7 +92,7 @@ float label_intensity(vec3 p) {
 }
 vec3 shade_label(vec3 c, float t) {
   t = clamp(t, 0.0, 1.0);
-  if (u_label_shading == 1) return c * t;
+  if (u_label_shading == 1) return c * (K_MODULATED_FLOOR + (1.0 - K_MODULATED_FLOOR) * t);
   if (t < 0.5) return c * (2.0 * t);
   return c + (vec3(1.0) - c) * (2.0 * t - 1.0);
 }
@@ -141,7 +142,38 @@ void main() {
   if (u_jitter != 0) p += dir * (dray * (hash(gl_FragCoord.xy) - 0.5));
   // No discard anywhere (it would disable llvmpipe's early depth test, which the early ray
   // termination relies on): a removed sample writes the blend's neutral value instead.
-  if (u_clip != 0 && dot(u_clip_plane.xyz, p) > u_clip_plane.w) {
+  // The sample stands for the ray segment [−dray/2, +dray/2] around p. The compositing modes
+  // keep the part of it inside the volume box and on the kept side of the clip plane: its
+  // length, and where a face or the plane cuts into the segment from the eye's side, the sample
+  // moves onto it (a cut face or the box's face is sampled where it is, not up to a slice
+  // spacing behind it: no staircase there). The other modes remove the sample when p is clipped.
+  const bool compositing = u_mode == 0 || u_mode == 1 || u_mode == 5 || u_mode == 7;
+  float side = u_clip != 0 ? dot(u_clip_plane.xyz, p) - u_clip_plane.w : -1.0;  // > 0: removed
+  if (compositing) {
+    float lo = -0.5 * dray, hi = 0.5 * dray;
+    vec3 d = dir;
+    for (int a = 0; a < 3; ++a)
+      if (abs(d[a]) < 1e-12) d[a] = 1e-12;
+    vec3 ta = (u_box_lo - p) / d, tb = (u_box_hi - p) / d;
+    vec3 tmin = min(ta, tb), tmax = max(ta, tb);
+    lo = max(lo, max(max(tmin.x, tmin.y), tmin.z));
+    hi = min(hi, min(min(tmax.x, tmax.y), tmax.z));
+    if (u_clip != 0) {
+      float nd = dot(u_clip_plane.xyz, dir);
+      if (abs(nd) > 1e-7) {
+        float u0 = -side / nd;
+        if (nd > 0.0) hi = min(hi, u0); else lo = max(lo, u0);
+      } else if (side > 0.0) {
+        hi = lo;
+      }
+    }
+    if (hi <= lo) {
+      o_colour = vec4(0.0);
+      return;
+    }
+    p += dir * (lo > -0.5 * dray ? lo : min(0.0, hi));
+    dray = hi - lo;
+  } else if (side > 0.0) {
     o_colour = u_mode == 2 ? vec4(-1e30, 0.0, 0.0, 0.0) : vec4(0.0);
     return;
   }

@@ -28,7 +28,9 @@ struct SliceRenderer::Impl {
       std::string fragment = shaders::kSliceFragment;
       const std::string version = "#version 330 core\n";
       fragment.replace(fragment.find(version), version.size(),
-                       version + "#define u_mode " + std::to_string(i) + "\n");
+                       version + "#define u_mode " + std::to_string(i) + "\n" +
+                           "#define K_MODULATED_FLOOR " + std::to_string(render::kModulatedFloor) +
+                           "\n");
       const std::string decl = "uniform int u_mode;\n";
       fragment.erase(fragment.find(decl), decl.size());
       slice_programs[i] =

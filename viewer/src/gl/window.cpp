@@ -164,13 +164,15 @@ std::vector<Command> read_script(const std::string& path) {
   return out;
 }
 
-// The window's frame (default framebuffer, after the volume and before the panel), row 0 at top.
-render::Image8 read_window(int w, int h) {
+// The volume's part of the window's frame (`area` of a framebuffer `fh` pixels high; default
+// framebuffer, after the volume and before the panel), row 0 at top.
+render::Image8 read_window(const PixelRect& area, int fh) {
+  const int w = area.width, h = area.height;
   render::Image8 image(w, h);
   std::vector<std::uint8_t> rows(image.rgba.size());
   glBindFramebuffer(GL_FRAMEBUFFER, 0);
   glPixelStorei(GL_PACK_ALIGNMENT, 1);
-  glReadPixels(0, 0, w, h, GL_RGBA, GL_UNSIGNED_BYTE, rows.data());
+  glReadPixels(area.x, fh - area.y - h, w, h, GL_RGBA, GL_UNSIGNED_BYTE, rows.data());
   const std::size_t stride = std::size_t(w) * 4;
   for (int y = 0; y < h; ++y)
     std::memcpy(&image.rgba[std::size_t(y) * stride], &rows[std::size_t(h - 1 - y) * stride],
@@ -201,11 +203,13 @@ struct FrameResult {
 
 // One frame: the camera from the interaction state (lower resolution, fewer slices and coarser
 // bricks while it moves), bricks paged by view (plan with what is resident, ask for what is
-// missing, coarsest first, upload for at most ~10 ms), drawn into the window's framebuffer.
+// missing, coarsest first, upload for at most ~10 ms), drawn into `area` of the window's
+// framebuffer (fh pixels high), the part the panel leaves free; the camera is fitted to it.
 FrameResult draw_frame(const State& state, const render::LevelGeometry& g0,
                        const render::BrickTree& tree, BrickCache& cache,
-                       const render::PlanOptions& base_plan, SliceRenderer& renderer, int fw,
-                       int fh) {
+                       const render::PlanOptions& base_plan, SliceRenderer& renderer,
+                       const PixelRect& area, int fh) {
+  const int fw = area.width, ah = area.height;
   FrameResult out;
   out.moving = now() - state.last_change < 0.25 || state.button >= 0;
   const int scale = out.moving ? 2 : 1;
@@ -215,7 +219,7 @@ FrameResult draw_frame(const State& state, const render::LevelGeometry& g0,
   orbit.target = g0.box().centre();
   params.mpr_target = orbit.target + orbit.pan_mm;
   render::Camera cam =
-      render::orbit_camera(orbit, g0.box(), std::max(fw / scale, 1), std::max(fh / scale, 1));
+      render::orbit_camera(orbit, g0.box(), std::max(fw / scale, 1), std::max(ah / scale, 1));
   const unsigned channels = render::channels_for(params, tree.present_channels());
   render::PlanOptions popt = base_plan;
   if (out.moving) popt.lod_pixels *= 2;
@@ -234,7 +238,7 @@ FrameResult draw_frame(const State& state, const render::LevelGeometry& g0,
   glClearColor(0, 0, 0, 1);
   glBindFramebuffer(GL_FRAMEBUFFER, 0);
   glClear(GL_COLOR_BUFFER_BIT);
-  renderer.resolve(0, 0, 0, fw, fh);
+  renderer.resolve(0, area.x, fh - area.y - ah, fw, ah);
   glFinish();
   out.render_ms = (now() - t0) * 1e3;
   return out;
@@ -243,7 +247,7 @@ FrameResult draw_frame(const State& state, const render::LevelGeometry& g0,
 #ifdef VISPACK_HAVE_IMGUI
 // The Dear ImGui panel: its own state, and one function per section.
 struct Panel {
-  std::vector<render::Tf2dWidget> tf_widgets = {render::Tf2dWidget{}};
+  std::vector<render::Tf2dWidget> tf_widgets = render::mode_defaults(render::Mode::kTf2d).tf2d;
   char search[64] = "";
   float clip_offset = 0.0f;
 };
@@ -324,6 +328,7 @@ void panel_tf2d(State& state, Panel& panel) {
       w.colour = {c[0], c[1], c[2], c[3]};
       changed = true;
     }
+    changed |= ImGui::Checkbox("opacity rises with |gradient|", &w.gradient_weighted);
     if (ImGui::Button("remove")) {
       tf_widgets.erase(tf_widgets.begin() + std::ptrdiff_t(i));
       changed = true;
@@ -390,20 +395,29 @@ int run_window(const ViewOptions& options) {
   glfwWindowHint(GLFW_CONTEXT_VERSION_MINOR, 3);
   glfwWindowHint(GLFW_OPENGL_PROFILE, GLFW_OPENGL_CORE_PROFILE);
   glfwWindowHint(GLFW_OPENGL_FORWARD_COMPAT, GLFW_TRUE);
+  int width = options.width, height = options.height;
+  if (!options.size_set) {  // fitted to the screen: the volume beside the panel, both readable
+    int sx = 0, sy = 0, sw = 0, sh = 0;
+    if (GLFWmonitor* monitor = glfwGetPrimaryMonitor())
+      glfwGetMonitorWorkarea(monitor, &sx, &sy, &sw, &sh);
+    const PixelRect size = default_window_size(sw, sh);
+    width = size.width;
+    height = size.height;
+  }
   WindowHandle handle;
-  handle.window = glfwCreateWindow(options.width, options.height,
-                                   ("vispack-view " + options.file).c_str(), nullptr, nullptr);
+  handle.window =
+      glfwCreateWindow(width, height, ("vispack-view " + options.file).c_str(), nullptr, nullptr);
   if (!handle.window) throw Error("cannot open an OpenGL 3.3 core window (use --screenshot)");
   GLFWwindow* window = handle.window;
   glfwMakeContextCurrent(window);
   glfwSwapInterval(1);
 
   State state;
-  state.params = options.params;
+  state.params = initial_params(options, *source);
   state.orbit = options.orbit;
-  state.params.label_colours = render::make_label_colours(source->labels(), options.label_opacity);
   std::vector<render::Label> labels = source->labels();
   render::LevelGeometry g0 = source->level(0);
+  render::Mode shown_mode = state.params.mode;
   glfwSetWindowUserPointer(window, &state);
   glfwSetMouseButtonCallback(window, on_button);
   glfwSetCursorPosCallback(window, on_move);
@@ -435,20 +449,36 @@ int run_window(const ViewOptions& options) {
 
   std::size_t next_command = 0;
   double frame_ms = 0;
+  // The panel's rectangle in window pixels (as the last frame drew it; none without ImGui).
+  PixelRect panel_rect{0, 0, 0, 0};
+#ifdef VISPACK_HAVE_IMGUI
+  panel_rect = initial_panel(width, height);
+#endif
   for (int frame_index = 0; !glfwWindowShouldClose(window); ++frame_index) {
     if (options.max_frames > 0 && frame_index >= options.max_frames) break;
     glfwPollEvents();
     // Script: view changes run at once; wait/screenshot hold until the view is complete.
     apply_view_commands(script, next_command, state);
     if (!script.empty() && next_command >= script.size()) break;
-    int fw = 1, fh = 1;
+    if (state.params.mode != shown_mode) {  // a new mode starts from its defaults
+      apply_mode_defaults(state.params, options, g0.box());
+      shown_mode = state.params.mode;
+    }
+    int fw = 1, fh = 1, ww = 1, wh = 1;
     glfwGetFramebufferSize(window, &fw, &fh);
-    const FrameResult frame = draw_frame(state, g0, tree, cache, base_plan, renderer, fw, fh);
+    glfwGetWindowSize(window, &ww, &wh);
+    // The panel in framebuffer pixels (they differ from window pixels on a high-DPI screen).
+    const double kx = double(fw) / std::max(ww, 1), ky = double(fh) / std::max(wh, 1);
+    const PixelRect area =
+        free_area(fw, fh,
+                  {int(panel_rect.x * kx), int(panel_rect.y * ky),
+                   int(std::ceil(panel_rect.width * kx)), int(std::ceil(panel_rect.height * ky))});
+    const FrameResult frame = draw_frame(state, g0, tree, cache, base_plan, renderer, area, fh);
     frame_ms = 0.9 * frame_ms + 0.1 * frame.render_ms;
     if (next_command < script.size() && !frame.moving && frame.plan.missing.empty() &&
         !cache.busy()) {
       const Command& c = script[next_command];
-      if (c.verb == "screenshot") render::write_png(c.arg, read_window(fw, fh));
+      if (c.verb == "screenshot") render::write_png(c.arg, read_window(area, fh));
       ++next_command;
     }
 
@@ -457,7 +487,15 @@ int run_window(const ViewOptions& options) {
     ImGui_ImplGlfw_NewFrame();
     ImGui::NewFrame();
     state.want_mouse = ImGui::GetIO().WantCaptureMouse;
+    const PixelRect first = initial_panel(ww, wh);
+    ImGui::SetNextWindowPos(ImVec2(float(first.x), float(first.y)), ImGuiCond_FirstUseEver);
+    ImGui::SetNextWindowSize(ImVec2(float(first.width), float(first.height)),
+                             ImGuiCond_FirstUseEver);
     ImGui::Begin("vispack");
+    {
+      const ImVec2 pos = ImGui::GetWindowPos(), size = ImGui::GetWindowSize();
+      panel_rect = {int(pos.x), int(pos.y), int(std::ceil(size.x)), int(std::ceil(size.y))};
+    }
     panel_render_params(state, panel, g0);
     panel_status(frame, frame_ms, levels, cache, options.max_gpu_mb, lost);
     if (state.params.mode == render::Mode::kLabels) {

@@ -143,8 +143,10 @@ Rgba shade_label(const Rgba& c, LabelShading shading, double t) {
   switch (shading) {
     case LabelShading::kFlat:
       return c;
-    case LabelShading::kModulated:
-      return {c.r * f, c.g * f, c.b * f, c.a};
+    case LabelShading::kModulated: {
+      const float k = float(kModulatedFloor) + (1.0f - float(kModulatedFloor)) * f;
+      return {c.r * k, c.g * k, c.b * k, c.a};
+    }
     case LabelShading::kRamp:
       if (f < 0.5f) return {c.r * 2 * f, c.g * 2 * f, c.b * 2 * f, c.a};
       return {c.r + (1 - c.r) * (2 * f - 1), c.g + (1 - c.g) * (2 * f - 1),
@@ -201,7 +203,11 @@ TransferFunction2D make_tf2d(const std::vector<Tf2dWidget>& widgets, double valu
       for (const Tf2dWidget& w : widgets) {
         if (!(w.value_hi > w.value_lo) || g < w.gradient_lo || g > w.gradient_hi) continue;
         const double c = 0.5 * (w.value_lo + w.value_hi), h = 0.5 * (w.value_hi - w.value_lo);
-        const double tent = std::max(0.0, 1.0 - std::fabs(v - c) / h);
+        double tent = std::max(0.0, 1.0 - std::fabs(v - c) / h);
+        if (w.gradient_weighted)
+          tent *= w.gradient_hi > w.gradient_lo
+                      ? (g - w.gradient_lo) / (w.gradient_hi - w.gradient_lo)
+                      : 1.0;
         const float a = float(std::clamp(double(w.colour.a), 0.0, 1.0) * tent);
         if (a > best.a) best = {w.colour.r, w.colour.g, w.colour.b, a};
       }

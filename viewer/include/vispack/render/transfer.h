@@ -53,10 +53,13 @@ constexpr int kLabelTableSize = 65536;
 std::vector<Rgba> make_label_colours(const std::vector<Label>& labels, double opacity);
 
 // Labels mode colouring (seed 004): flat table colour; the table colour modulated by the
-// intensity t (colour·t, "fade each segment towards black"); or a ramp per segment (black at
-// t = 0, the segment colour at t = 0.5, white at t = 1). t = window01(HU) when the volume has CT,
-// else the luminance (0.299, 0.587, 0.114) of the straight colour (0 where alpha is 0).
+// intensity t (colour·(k + (1 − k)·t), k = kModulatedFloor = 0.5: "fade each segment towards
+// black", but never below k of its colour, so a segment of low intensity stays readable); or a ramp
+// per segment (black at t = 0, the segment colour at t = 0.5, white at t = 1). t = window01(HU)
+// when the volume has CT, else the luminance (0.299, 0.587, 0.114) of the straight colour (0 where
+// alpha is 0).
 enum class LabelShading { kFlat, kModulated, kRamp };
+constexpr double kModulatedFloor = 0.5;
 const char* label_shading_name(LabelShading s);  // "flat", "modulated", "ramp"
 std::optional<LabelShading> label_shading_from_name(const std::string& name);
 // Colour of a segment of table colour `c` at intensity t ∈ [0, 1] (alpha unchanged).
@@ -79,12 +82,15 @@ struct TransferFunction2D {
   bool any_opacity(double hu_lo, double hu_hi) const;
 };
 // One editor widget: a box in (value, gradient) space, opacity a tent over the value range
-// (peak at its centre) and flat over the gradient range; the table is the maximum (by alpha)
-// of all widgets.
+// (peak at its centre) and, over the gradient range, flat or (gradient_weighted) rising linearly
+// from 0 at gradient_lo to the peak at gradient_hi, so that boundaries (high gradient magnitude)
+// show and the insides of tissues (low gradient) stay clear; the table is the maximum (by
+// alpha) of all widgets.
 struct Tf2dWidget {
   double value_lo = 200, value_hi = 1400;     // HU
   double gradient_lo = 0, gradient_hi = 400;  // HU/mm
   Rgba colour{0.95f, 0.9f, 0.8f, 0.6f};       // alpha = peak opacity per Δ0
+  bool gradient_weighted = false;
 };
 TransferFunction2D make_tf2d(const std::vector<Tf2dWidget>& widgets, double value_min = -1000,
                              double value_max = 2000, double gradient_max = 400);

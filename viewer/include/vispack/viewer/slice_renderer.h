@@ -9,7 +9,10 @@
 // program per mode (compiled at the mode's first frame). The formulas are those of
 // render/transfer.h and render/reference.h, sample for sample: per fragment the ray segment a
 // slice stands for is Δ_ray = Δ / dot(ray, forward), and opacity is corrected with
-// Δ_ray / Δ0.
+// Δ_ray / Δ0. In the compositing modes that segment is cut to the volume box and to the clip
+// plane (the reference integrates exactly inside both): a sample keeps the length of its
+// segment's kept part, and moves onto the face or plane that cuts into the segment from the
+// eye's side, so cut faces and box faces are sampled where they are (no slice-lattice staircase).
 //
 // All members must be called on the thread whose GL context is current.
 #pragma once
