@@ -139,6 +139,9 @@ if [[ -x $bin/viewer_bench ]]; then
     $view_reps $view_frames "$res" "$work" 2>"$res/viewer-driver.log" ||
     { tail -40 "$res/viewer.log"; cat "$res/viewer-driver.log"; fail "viewer benchmark (viewer_bench, VTK peer) failed"; }
 else
+  # Under CI (CI=true or VISPACK_STRICT=1) the viewer benchmark must run.
+  [[ ${CI:-} == true || ${VISPACK_STRICT:-0} == 1 ]] &&
+    fail "viewer_bench was not built: under CI the viewer benchmark must run"
   echo "bench.sh: viewer_bench not built (no viewer); skipping the viewer benchmark" | tee "$res/viewer.skipped"
 fi
 
