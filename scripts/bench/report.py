@@ -173,6 +173,8 @@ class Report(StagesSection, RegistrationSection, PackSection, ViewerSection, Sca
             getattr(self, name)()
             new = "\n".join(self.md).rstrip("\n").split("\n")
             title = new[0]
+            if len(self.md) <= 2:  # the title and "Not measured": no results for it here
+                raise SystemExit(f"report.py: --only {name}: {self.res} holds no results for it")
             dirty = " with uncommitted changes" if m.get("dirty", True) else ""
             new[1:1] = ["", f"*Regenerated alone (`report.py RESULTS DOCS --only {name}`) from results "
                             f"measured at commit `{m['commit'][:12]}`{dirty}, {m['date']}; the rest of "
