@@ -24,7 +24,16 @@ if [[ ${#targets[@]} -eq 0 ]]; then
 fi
 status=0
 for t in "${targets[@]}"; do
-  [[ -x $build/bin/$t ]] || { echo "fuzz: $t not built, skipped"; continue; }
+  if [[ ! -x $build/bin/$t ]]; then
+    # Under CI (CI=true or VISPACK_STRICT=1) a fuzz target that was not built is a failure.
+    if [[ ${CI:-} == true || ${VISPACK_STRICT:-0} == 1 ]]; then
+      echo "fuzz: $t was not built (under CI every fuzz target must run)" >&2
+      status=1
+    else
+      echo "fuzz: $t not built, skipped"
+    fi
+    continue
+  fi
   dir=$root/out/fuzz/$t
   mkdir -p "$dir/corpus" "$dir/seeds" "$dir/crashes"
   "$build/bin/${t}_replay" --seeds "$dir/seeds" >/dev/null

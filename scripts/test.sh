@@ -116,9 +116,9 @@ if [[ $sanitize == 1 ]]; then
   CC=clang CXX=clang++ VISPACK_BUILD_TYPE=RelWithDebInfo scripts/build.sh "$root/build-sanitize" \
     -DVISPACK_SANITIZE=ON -DVISPACK_FUZZ=ON -DVISPACK_BUILD_BENCH=OFF -DVISPACK_WERROR=ON
   # Leak detection on (our code is checked for leaks), every UBSan finding fatal.
-  stamp "Running sanitized tests (common, format, pipeline, render, viewer, data, cli)"
+  stamp "Running sanitized tests (common, format, pipeline, render, viewer, data, cli, phantom, python)"
   ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
-    run_ctest build-sanitize -j "$jobs" --timeout 900 -L 'common|format|pipeline|render|viewer|data|cli' ||
+    run_ctest build-sanitize -j "$jobs" --timeout 900 -L 'common|format|pipeline|render|viewer|data|cli|phantom|python' ||
     failed=1
 fi
 

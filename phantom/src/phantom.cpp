@@ -32,11 +32,12 @@ using pipeline::write_image;
 using pipeline::write_raw_slice;
 using ojson = nlohmann::ordered_json;
 
-constexpr double kNoiseSigma = 3.0;  // RGB sensor noise, 8-bit levels
-constexpr double kCtNoiseHu = 6.0;   // CT noise, HU
-constexpr double kGainRange = 0.05;  // brightness gain 1 ± 5 %
-constexpr double kDriftPx = 0.3;     // random-walk step σ, pixels
-constexpr double kDriftDeg = 0.05;   // random-walk step σ, degrees
+constexpr double kNoiseSigma = 3.0;              // RGB sensor noise, 8-bit levels
+constexpr double kCtNoiseHu = 6.0;               // CT noise, HU
+constexpr double kGainRange = 0.05;              // brightness gain 1 ± 5 %
+constexpr double kDriftPx = 0.3;                 // random-walk step σ, pixels
+constexpr double kDriftDeg = 0.05;               // random-walk step σ, degrees
+constexpr double kSystematicDegPerSlice = 0.02;  // DriftModel::kRotation
 
 struct SliceTruth {
   double dx = 0, dy = 0, rot = 0, gain = 1;
@@ -139,7 +140,15 @@ Plan make_plan(const PhantomOptions& options) {
   }
 
   const bool tiny = p.height < 128;
-  const double jump_lo = tiny ? 7.0 : 10.0, jump_hi = tiny ? 9.0 : 15.0;
+  double jump_lo = tiny ? 7.0 : 10.0, jump_hi = tiny ? 9.0 : 15.0;
+  if (options.jump_px_min > 0 || options.jump_px_max > 0) {
+    if (!(options.jump_px_min > 0 && options.jump_px_min <= options.jump_px_max &&
+          options.jump_px_max <= 100)) {
+      throw UsageError(cat("--jump-px ", options.jump_px_min, ":", options.jump_px_max,
+                           ": needs 0 < MIN <= MAX <= 100 px"));
+    }
+    jump_lo = options.jump_px_min, jump_hi = options.jump_px_max;
+  }
   const double rot_lo = tiny ? 1.5 : 2.0, rot_hi = tiny ? 2.5 : 4.0;
   const Limits lim = limits_for(p, plan.anatomy, tiny ? 3.5 : 6.0);
 
@@ -156,14 +165,34 @@ Plan make_plan(const PhantomOptions& options) {
   }
 
   Random rng(options.seed * 0x9e3779b97f4a7c15ull + 17);
+  // The models other than the walk draw from their own generator, so the gains and the jump are
+  // the same whatever the model (and the walk's folder byte-identical to before the models).
+  using Model = PhantomOptions::DriftModel;
+  const Model model = options.drift_model;
+  Random heavy_rng(options.seed * 0x2545f4914f6cdd1dull + 31);
+  const double bow_px = std::max(1.0, 0.02 * p.height);
+  auto bow = [&](int k) { return bow_px * std::sin(kPi * k / std::max(1, n - 1)); };
   plan.truth.resize(n);
   for (int k = 0; k < n; ++k) {
     SliceTruth& s = plan.truth[k];
     s.source = k;
     s.gain = 1.0 + rng.uniform(-kGainRange, kGainRange);
     const double drift = options.drift ? 1.0 : 0.0;  // the draws happen either way
-    const double step_x = drift * rng.normal(kDriftPx), step_y = drift * rng.normal(kDriftPx);
-    const double step_r = drift * rng.normal(kDriftDeg);
+    double step_x = drift * rng.normal(kDriftPx), step_y = drift * rng.normal(kDriftPx);
+    double step_r = drift * rng.normal(kDriftDeg);
+    if (model == Model::kHeavy) {
+      // Student's t with 2 degrees of freedom: a normal over sqrt(chi²₂ / 2) = sqrt(−ln U).
+      auto t2 = [&](double sigma) {
+        const double u = std::max(heavy_rng.uniform(), 1e-300);
+        return std::clamp(heavy_rng.normal(1.0) / std::sqrt(-std::log(u)), -15.0, 15.0) * sigma;
+      };
+      step_x = drift * t2(kDriftPx), step_y = drift * t2(kDriftPx), step_r = drift * t2(kDriftDeg);
+    } else if (model == Model::kRotation) {
+      step_r += drift * kSystematicDegPerSlice;
+    } else if (model == Model::kBowed && k > 0) {
+      step_x += drift * (bow(k) - bow(k - 1));
+      step_y += drift * (bow(k) - bow(k - 1));
+    }
     const double jump_m = rng.uniform(jump_lo, jump_hi), jump_a = rng.uniform(0, 2 * kPi);
     const double jump_r = rng.uniform(rot_lo, rot_hi) * (rng.uniform() < 0.5 ? -1 : 1);
     if (k == 0) {
@@ -277,6 +306,15 @@ PhantomPreset phantom_preset(const std::string& name) {
   }
   p.slice_mm = 1.0;
   return p;
+}
+
+PhantomOptions::DriftModel parse_drift_model(const std::string& name) {
+  using Model = PhantomOptions::DriftModel;
+  if (name == "walk") return Model::kWalk;
+  if (name == "heavy") return Model::kHeavy;
+  if (name == "rotation") return Model::kRotation;
+  if (name == "bowed") return Model::kBowed;
+  throw UsageError(cat("--drift '", name, "': not walk, heavy, rotation or bowed"));
 }
 
 PhantomSummary make_phantom(const std::string& out_dir, const PhantomOptions& options) {

@@ -3,7 +3,9 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <iostream>
+#include <string>
 
 #include "vispack/common/cli.h"
 #include "vispack/common/error.h"
@@ -16,7 +18,9 @@ int main(int argc, char** argv) {
         "--out DIR [--preset NAME | --from-ct CT [--first K] [--margin PX]] [--ct-scale F] [--seed "
         "N] [--slices N] "
         "[--rgb-raw] [--seg-jpeg] [--defects|--no-defects] [--fiducials|--no-fiducials] "
-        "[--ct-every N] [--seg-every N] [--no-drift] [--no-jump] [--threads N] [--quiet]",
+        "[--ct-every N] [--seg-every N] [--no-drift] [--drift MODEL] [--no-jump] [--jump-px "
+        "MIN:MAX] "
+        "[--threads N] [--quiet]",
         "Writes a synthetic Visible-Human-style slice folder (rgb/, ct/, seg/, palette.json,\n"
         "config.json) with ground truth in truth/ (NRRD volumes and transforms.json).\n"
         "--from-ct synthesises the colour slices from a real CT (a .nrrd, a config.json, or a\n"
@@ -53,7 +57,13 @@ int main(int argc, char** argv) {
     const bool fiducials = args.flag("--fiducials", "draw the two fiducial tubes");
     const bool no_fiducials = args.flag("--no-fiducials", "no fiducial tubes");
     const bool no_drift = args.flag("--no-drift", "true drift exactly zero (camera offset stays)");
+    const auto drift_model = args.option(
+        "--drift", "MODEL",
+        "presets: walk (default: the Gaussian walk the solver's prior assumes) | heavy\n"
+        "      (heavy-tailed steps) | rotation (plus 0.02 deg/slice) | bowed (a bowed stack)");
     const bool no_jump = args.flag("--no-jump", "no block jump");
+    const auto jump_px = args.option(
+        "--jump-px", "MIN:MAX", "presets: block jump magnitude in px (default 10:15; 7:9 tiny)");
     const auto threads =
         args.option_int("--threads", "N", "threads in all, this one included (default: all cores)");
     const bool quiet = args.flag("--quiet", "no progress output");
@@ -72,6 +82,8 @@ int main(int argc, char** argv) {
 
     if (from_ct) {
       if (preset) throw vispack::UsageError("--preset and --from-ct conflict");
+      if (drift_model || jump_px)
+        throw vispack::UsageError("--drift and --jump-px apply to the presets only");
       if (seg_every) throw vispack::UsageError("--seg-every applies to the presets only");
       if (options.rgb_raw || options.seg_jpeg || defects || fiducials)
         throw vispack::UsageError(
@@ -102,6 +114,18 @@ int main(int argc, char** argv) {
       return 0;
     }
     if (first || margin) throw vispack::UsageError("--first and --margin need --from-ct");
+    if (drift_model) options.drift_model = vispack::phantom::parse_drift_model(*drift_model);
+    if (jump_px) {
+      const auto colon = jump_px->find(':');
+      char* end = nullptr;
+      const double lo = std::strtod(jump_px->c_str(), &end);
+      const bool lo_ok = colon != std::string::npos && end == jump_px->c_str() + colon;
+      const double hi = lo_ok ? std::strtod(jump_px->c_str() + colon + 1, &end) : 0.0;
+      if (!lo_ok || *end != '\0' || colon + 1 == jump_px->size())
+        throw vispack::UsageError("--jump-px '" + *jump_px + "': expected MIN:MAX in px, e.g. 3:6");
+      options.jump_px_min = lo;
+      options.jump_px_max = hi;
+    }
     if (ct_every)
       options.ct_every = static_cast<int>(std::clamp<long long>(*ct_every, -1, 1 << 20));
     if (seg_every)

@@ -43,6 +43,13 @@ def pair_error_px(est, truth, width, height):
     return float(np.max(np.hypot(d[:, 0], d[:, 1])))
 
 
+def point_error_px(est, truth, point):
+    """Displacement (px) between two 2x3 affine maps at one image point (x, y)."""
+    p = np.array([point[0], point[1], 1.0])
+    d = np.asarray(est, float) @ p - np.asarray(truth, float) @ p
+    return float(np.hypot(d[0], d[1]))
+
+
 def rms(xs):
     return float(np.sqrt(np.mean(np.square(xs))))
 

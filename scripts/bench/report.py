@@ -1,7 +1,9 @@
 #!/usr/bin/python3
 """Writes docs/BENCHMARKS.md and docs/img/*.png from the results scripts/bench.sh collected.
 Every number in the report comes from RESULTS_DIR (one run of scripts/bench.sh).
-Usage: report.py RESULTS_DIR DOCS_DIR"""
+Usage: report.py RESULTS_DIR DOCS_DIR [--only SECTION[,SECTION...]]
+  --only  regenerate only those sections (method names: store_size, drift_models, registration,
+          viewer, ...) from a results folder of a benchmark run alone, stamped with its commit"""
 import glob
 import os
 import re
@@ -31,6 +33,15 @@ class Report(StagesSection, RegistrationSection, PackSection, ViewerSection, Sca
 
     def w(self, text=""):
         self.md.append(text)
+
+    def section(self, title, result, missing="Not measured."):
+        """Writes the section title; returns the result file's JSON, or None after saying why
+        there is none (the section then ends)."""
+        data = load(self.res, result)
+        self.w(f"## {title}\n")
+        if not data:
+            self.w(missing + "\n")
+        return data
 
     def save(self, fig, name, alt):
         fig.tight_layout()
@@ -97,8 +108,9 @@ class Report(StagesSection, RegistrationSection, PackSection, ViewerSection, Sca
 
     def kept_sections(self):
         """Sections of the current BENCHMARKS.md measured by hand (not by this script), marked
-        with a line `<!-- kept after: NAME -->` (NAME: the generating method they follow, e.g.
-        registration). They are carried over verbatim, so a full run does not lose them."""
+        with a line `<!-- kept after: NAME; measured: COMMIT YYYY-MM-DD -->` (NAME: the generating
+        method they follow, e.g. registration; COMMIT and the date: when its numbers were
+        measured). They are carried over verbatim, so a full run does not lose them."""
         path = os.path.join(self.docs, "BENCHMARKS.md")
         kept = {}
         if not os.path.exists(path):
@@ -112,8 +124,13 @@ class Report(StagesSection, RegistrationSection, PackSection, ViewerSection, Sca
                 current.append(line)
         for lines in sections:
             for line in lines:
-                m = re.match(r"<!-- kept after: (\w+) -->", line.strip())
+                m = re.match(r"<!-- kept after: (\w+)(.*?)-->", line.strip())
                 if m:
+                    # A section carried over must say when it was measured (a commit and a date),
+                    # so a reader can tell how old a number is.
+                    if not re.match(r"; measured: [0-9a-f]{7,40} \d{4}-\d\d-\d\d $", m.group(2)):
+                        raise SystemExit(f"report.py: the kept section '{lines[0]}' has no "
+                                         "'measured: COMMIT YYYY-MM-DD' in its marker")
                     kept.setdefault(m.group(1), []).append("\n".join(lines).rstrip() + "\n")
                     break
         return kept
@@ -121,7 +138,7 @@ class Report(StagesSection, RegistrationSection, PackSection, ViewerSection, Sca
     def write(self):
         kept = self.kept_sections()
         self.header()
-        for name in ["stages", "registration", "mask", "pack", "viewer", "scaling", "real_size",
+        for name in ["stages", "registration", "drift_models", "mask", "pack", "store_size", "viewer", "scaling", "real_size",
                      "stage_memory", "format_details", "profiles"]:
             getattr(self, name)()
             for text in kept.pop(name, []):
@@ -140,5 +157,56 @@ class Report(StagesSection, RegistrationSection, PackSection, ViewerSection, Sca
         print(f"report: wrote {out} and {len(glob.glob(os.path.join(self.img, '*.png')))} plots in {self.img}")
 
 
+    def write_only(self, names):
+        """Regenerates only the sections `names` (method names) from RESULTS_DIR inside the
+        current docs/BENCHMARKS.md, each stamped with the commit and date of its own results
+        (machine.json there, or the tree now), and replaces the summary rows they produce; the
+        rest of the file stays as its last full run wrote it. For a benchmark run alone (the
+        script of each section names its command)."""
+        m = load(self.res, "machine.json") or dict(machine.provenance(), date="(date unknown)")
+        path = os.path.join(self.docs, "BENCHMARKS.md")
+        lines = open(path).read().split("\n")
+        for name in names:
+            if not callable(getattr(self, name, None)):
+                raise SystemExit(f"report.py: --only {name}: no such section")
+            self.md = []
+            getattr(self, name)()
+            new = "\n".join(self.md).rstrip("\n").split("\n")
+            title = new[0]
+            if len(self.md) <= 2:  # the title and "Not measured": no results for it here
+                raise SystemExit(f"report.py: --only {name}: {self.res} holds no results for it")
+            dirty = " with uncommitted changes" if m.get("dirty", True) else ""
+            new[1:1] = ["", f"*Regenerated alone (`report.py RESULTS DOCS --only {name}`) from results "
+                            f"measured at commit `{m['commit'][:12]}`{dirty}, {m['date']}; the rest of "
+                            "this file is from the run in its header.*"]
+            start = next((i for i, line in enumerate(lines) if line == title), None)
+            if start is None:
+                lines += [""] + new
+                continue
+            end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")), len(lines))
+            lines[start:end] = new + [""]
+        for row in self.summary:  # the summary rows those sections make
+            cell = f"| {row[0]} |"
+            text = "| " + " | ".join(str(c) for c in row) + " |"
+            at = next((i for i, line in enumerate(lines) if line.startswith(cell)), None)
+            if at is not None:
+                lines[at] = text
+            else:
+                head = lines.index("## Summary (vispack against the peer, same run)") if \
+                    "## Summary (vispack against the peer, same run)" in lines else None
+                if head is not None:
+                    end = next(i for i in range(head + 4, len(lines)) if not lines[i].startswith("|"))
+                    lines.insert(end, text)
+        tmp = path + ".tmp"
+        open(tmp, "w").write("\n".join(lines))
+        os.replace(tmp, path)
+        print(f"report: regenerated {', '.join(names)} in {path}")
+
+
 if __name__ == "__main__":
-    Report(sys.argv[1], sys.argv[2]).write()
+    if len(sys.argv) == 5 and sys.argv[3] == "--only":
+        Report(sys.argv[1], sys.argv[2]).write_only(sys.argv[4].split(","))
+    elif len(sys.argv) == 3:
+        Report(sys.argv[1], sys.argv[2]).write()
+    else:
+        raise SystemExit(__doc__)

@@ -99,3 +99,41 @@ class PackSection:
         if os.path.exists(f):
             self.w("## Format details (`format_bench`)\n")
             self.w(open(f).read().strip() + "\n")
+
+    def store_size(self):
+        """Stored size against the OpenVDB export and zstd -3 of the same content, and the work
+        folder against the input (scripts/bench/store_size.sh, run by scripts/bench.sh)."""
+        r = self.section("Stored size and intermediates", "store_size.json",
+                         "Not measured (a `--quick` run skips it).")
+        if not r:
+            return
+        self.w(f"Command: `scripts/bench/store_size.sh BIN WORK {r['slices']}` (run by "
+               "`scripts/bench.sh`). Input: the `vhp` phantom (`vispack-phantom --preset vhp --slices "
+               f"{r['slices']} --rgb-raw --seed 1`: 2048×1216 colour as planar `.raw` as NLM ships it, "
+               "512² CT, segmentation), run by `vispack-run` with the defaults, then repacked by "
+               "`vispack-pack --force` with `pack.keep_outside_body: \"all\"` (the gel kept) and with "
+               "`pack.crop_margin_px: 16`. The zstd peer compresses **the same file's own content**: "
+               "every channel of that file at level 0 as `vispack-extract` writes it (NRRD, raw), "
+               "concatenated, `zstd -3 -T1`. The OpenVDB export (`vispack-vdb`: float CT, int32 labels, "
+               "three floats of colour, body voxels only, level 0 only) stores 20 bytes a voxel against "
+               f"the packed file's {r['vpk_bytes_per_voxel']:.1f} (rgba8, int16 CT, uint8 or uint16 "
+               "labels), so most of the ratio against it is type width: it is also given at equal "
+               "widths (OpenVDB's standard grids have no 8- or 16-bit types to export to). The packed "
+               "file holds every level of the pyramid and its brick index; the zstd peer level 0 "
+               "only, as one stream.\n")
+        text = open(os.path.join(self.res, "store_size.md")).read() if os.path.exists(
+            os.path.join(self.res, "store_size.md")) else ""
+        self.w(text.rstrip() + "\n")
+        met = lambda ok: "**met**" if ok else "**not met**"
+        self.w(f"Goals (docs/GOALS.md §6): stored size ≤ 0.5× the OpenVDB export: "
+               f"{met(r['vpk_over_vdb'] <= 0.5)} as stored ({r['vpk_over_vdb']:.2f}×), "
+               f"{met(r['vpk_over_vdb_equal_width'] <= 0.5)} at equal type widths "
+               f"({r['vpk_over_vdb_equal_width']:.2f}×); < `zstd -3` of the raw bytes of the same "
+               f"content: {met(r['vpk_over_zstd'] < 1)} ({r['vpk_over_zstd']:.2f}×; with the gel kept "
+               f"{r['vpk_keep_over_zstd']:.2f}×); intermediates ≤ 15 % of the input: "
+               f"{met(r['work_over_input'] <= 0.15)} ({100 * r['work_over_input']:.1f} %). The packed "
+               f"file is {100 * r['vpk_over_input']:.1f} % of the input slices' bytes.\n")
+        self.summary.append(["stored size, same content (vhp phantom, 2048×1216)",
+                             f"{r['vpk_default'] / 1e6:.1f} MB (every level)",
+                             f"`zstd -3` of level 0: {r['zstd3_raw_level0'] / 1e6:.1f} MB",
+                             f"{r['vpk_over_zstd']:.2f}×"])

@@ -74,16 +74,22 @@ class RegistrationSection:
                 lo, hi = sorted((max(a, 1e-6), max(b, 1e-6)))
                 return hi / lo
 
-            near = min(epts, key=lambda p: closeness(p[2], default[2]))
+            # The peer at its best for this comparison: the cheapest elastix setting whose error is
+            # within 10 % of vispack's default (or better); only when none is, the closest in error.
+            within = [p for p in epts if p[2] <= 1.10 * default[2]]
+            near = (min(within, key=lambda p: p[k]) if within
+                    else min(epts, key=lambda p: closeness(p[2], default[2])))
             ratio_t = near[k] / default[k]
             gap = closeness(near[2], default[2])
             what = ("CPU time with file reading, without process start-up" if same_work
                     else "CPU time (elastix's includes its process start and file reading, vispack's neither)")
+            chosen = ("the cheapest elastix setting whose error is within 10 % of it or better"
+                      if within else "the elastix setting whose error is closest to it (none is within 10 %)")
             self.w(f"At (near) equal accuracy: vispack's default (phase + ECC at ecc_scale 0.5, "
-                   f"{fmt(default[2])} px RMS) against the elastix setting whose error is closest to it "
+                   f"{fmt(default[2])} px RMS) against {chosen} "
                    f"({near[0]}, {fmt(near[2])} px RMS): elastix takes **{ratio_t:.1f}×** vispack's {what} "
                    "per pair." + (f" The two errors still differ by {gap:.1f}×, so this is not an "
-                                  "equal-accuracy comparison: read it with the plot." if gap > 1.5 else ""))
+                                  "equal-accuracy comparison: read it with the plot." if gap > 1.5 and not within else ""))
             best = min(epts, key=lambda p: p[2])
             ours = min(pts, key=lambda p: closeness(p[2], best[2]))
             if best is not near or ours is not default:
@@ -93,7 +99,8 @@ class RegistrationSection:
             self.w("\n")
             self.summary.append(["registration (pair, CPU time" + (", reading files, no start-up)" if same_work else ")"),
                                  f"{fmt(default[k])} ms, {fmt(default[2])} px RMS",
-                                 f"elastix, closest error: {fmt(near[k])} ms, {fmt(near[2])} px RMS",
+                                 f"elastix, cheapest within 10 % of the error: {fmt(near[k])} ms, {fmt(near[2])} px RMS"
+                                 if within else f"elastix, closest error: {fmt(near[k])} ms, {fmt(near[2])} px RMS",
                                  f"{ratio_t:.1f}× faster" + (f" (errors differ {gap:.1f}×)" if gap > 1.5 else "")])
         fig, ax = plt.subplots(figsize=(7.5, 4.8))
         # x: the same-work time (file reading included, start-up excluded) where both have it.
@@ -174,3 +181,39 @@ class RegistrationSection:
         self.save(fig, "mask.png", "mask time against IoU")
 
     # ---- pack ---------------------------------------------------------------------------
+
+    def drift_models(self):
+        """The pipeline on drift that the solver's prior does not assume (drift_models.py)."""
+        d = self.section("Registration when the drift is not the solver's prior", "drift_models.json",
+                         "Not measured (a `--quick` run skips it).")
+        if not d:
+            return
+        self.w("Every other phantom here draws its drift from the Gaussian walk (0.3 px, 0.05° per "
+               "slice) that the solver's smoothness prior also assumes, with block jumps of 7–15 px "
+               "against the 6 px jump threshold. `scripts/bench/drift_models.py` (run by "
+               f"`scripts/bench.sh`) makes the `{d['preset']}` phantom with drift the prior does not "
+               "assume (`vispack-phantom --drift heavy`: Student's t steps, 2 degrees of freedom; "
+               "`--drift rotation`: the walk plus 0.02° per slice; `--drift bowed`: the walk plus half "
+               "a sine of 2 % of the frame height in x and y) and with a block jump of 3–6 px "
+               "(`--jump-px 3:6`, at or below the threshold; its rotation stays 2–4°), runs "
+               "`vispack-run CONFIG --to labels`, and scores with `vispack-score` (drift over the "
+               f"truth body), seeds {', '.join(str(s) for s in d['seeds'])}.\n")
+        rows = []
+        cases = list(dict.fromkeys(r["case"] for r in d["rows"]))
+        for case in cases:
+            rs = [r for r in d["rows"] if r["case"] == case]
+            rows.append([case, "`" + rs[0]["flags"] + "`",
+                         " / ".join(fmt(r["drift_body_rms_px"]) for r in rs),
+                         fmt(max(r["drift_body_max_px"] for r in rs)),
+                         f"{sum(r['jumps_found'] for r in rs)} of {sum(r['jumps_true'] for r in rs)}",
+                         str(sum(r["jumps_false"] for r in rs)),
+                         fmt(min(r["mask_iou"] for r in rs), 4)])
+        self.w(table(["drift", "phantom flags", "drift over the body, RMS px (per seed)", "max px",
+                      "jumps found", "false jumps", "worst stack IoU"], rows))
+        bad = [r for r in d["rows"] if r["drift_body_rms_px"] > 0.5]
+        if bad:
+            self.w("**Goal (≤ 0.5 px RMS over the body) not met** for: " + ", ".join(
+                sorted({r["case"] for r in bad})) + ". A block jump whose motion at the body stays "
+                "under `register.jump_px` is not cut from the smoothness prior, and the fiducial "
+                "groups span it: the solve spreads the step over its neighbours instead of taking "
+                "the step the pairs and anchors agree on.\n")

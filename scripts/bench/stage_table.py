@@ -13,7 +13,7 @@ import sys
 import numpy as np
 from PIL import Image
 
-from common import median, pair_error_px, rms, timed2, write_json
+from common import median, pair_error_px, point_error_px, rms, timed2, write_json
 from time_v import read_time_v
 
 BIN = os.environ["VISPACK_BENCH_BIN"]
@@ -57,8 +57,10 @@ def errors(phantom, truth, compared):
     est = json.load(open(os.path.join(work, "register", "transforms.json")))["slices"]
     drift = [pair_error_px(affine(est[z], centre), affine(truth["slices"][z], centre), w, h)
              for z in compared if z != truth.get("reference_slice", 0)]
-    # The same error at the image centre alone (no lever arm from a rotation error).
-    centre_err = [pair_error_px(affine(est[z], centre), affine(truth["slices"][z], centre), 1, 1)
+    # The same error at the image centre alone (no lever arm from a rotation error): the pixel
+    # ((width - 1) / 2, (height - 1) / 2), not the frame's corner.
+    mid = ((w - 1) / 2.0, (h - 1) / 2.0)
+    centre_err = [point_error_px(affine(est[z], centre), affine(truth["slices"][z], centre), mid)
                   for z in compared if z != truth.get("reference_slice", 0)]
     t_mask = read_nrrd(os.path.join(phantom, "truth", "mask.nrrd")) != 0
     t_lab = read_nrrd(os.path.join(phantom, "truth", "labels.nrrd"))

@@ -167,6 +167,7 @@ if command -v snakemake >/dev/null; then
   done
 else
   echo "dry_run_test: snakemake not installed: the Snakefile's chain and merge_threads not checked"
+  snakemake_missing=1
 fi
 
 # Usage errors: one line, exit 2 (3 for a missing config).
@@ -183,3 +184,9 @@ set +e
 help=$("$root/scripts/vispack-slurm" --help) || fail "--help exits $?"
 grep -q '^Usage: vispack-slurm CONFIG' <<<"$help" || fail "--help"
 echo "PASS: vispack-slurm --dry-run chain run by hand gives the local packed file"
+# Without snakemake half of the test did not run: reported as skipped (77), which a CI run
+# (scripts/test.sh under CI=true) counts as a failure.
+if [[ ${snakemake_missing:-0} == 1 ]]; then
+  echo "SKIP: the Snakefile's half (snakemake is not installed: scripts/install-deps.sh)"
+  exit 77
+fi

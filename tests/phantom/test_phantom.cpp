@@ -573,3 +573,108 @@ TEST(Phantom, LoadConfigAcceptsIt) {
   EXPECT_DOUBLE_EQ(config.ct->pixel_spacing_mm[0], 1.0);
   ASSERT_TRUE(config.seg.has_value());
 }
+
+// The drift models that break the registration prior's assumption (a Gaussian walk): with the
+// same seed the walk's draws are the same, so the rotation model is the walk plus exactly
+// 0.02° per slice and the bowed one the walk plus exactly half a sine; the heavy model's steps
+// have heavy tails (kurtosis far above the normal's 3); --jump-px sets the block jump's size.
+namespace {
+
+struct TruthWalk {
+  std::vector<double> dx, dy, rot;
+  int jump = -1;
+};
+
+TruthWalk truth_walk(const std::string& dir) {
+  const json t = json::parse(vispack::read_file(dir + "/truth/transforms.json"));
+  TruthWalk w;
+  for (std::size_t k = 0; k < t["slices"].size(); ++k) {
+    const json& s = t["slices"][k];
+    w.dx.push_back(s["dx_px"]);
+    w.dy.push_back(s["dy_px"]);
+    w.rot.push_back(s["rotation_deg"]);
+    if (s.value("jump", false)) w.jump = static_cast<int>(k);
+  }
+  return w;
+}
+
+TruthWalk drift_phantom(const TempDir& dir, const std::string& name,
+                        vph::PhantomOptions::DriftModel model, bool jump = false,
+                        double jump_min = 0, double jump_max = 0) {
+  vph::PhantomOptions o;
+  o.preset = "small";
+  o.seed = 11;
+  o.slices = 40;
+  o.defects = false;
+  o.jump = jump;
+  o.drift_model = model;
+  o.jump_px_min = jump_min;
+  o.jump_px_max = jump_max;
+  o.quiet = true;
+  vph::make_phantom(dir / name, o);
+  return truth_walk(dir / name);
+}
+
+double kurtosis(const std::vector<double>& v) {
+  std::vector<double> d;
+  for (std::size_t k = 1; k < v.size(); ++k)
+    d.push_back(v[k] - v[k - 1]);
+  double m2 = 0, m4 = 0;
+  for (double x : d)
+    m2 += x * x, m4 += x * x * x * x;
+  m2 /= double(d.size()), m4 /= double(d.size());
+  return m4 / (m2 * m2);
+}
+
+}  // namespace
+
+TEST(PhantomDrift, ModelsThatAreNotTheSolversPrior) {
+  using Model = vph::PhantomOptions::DriftModel;
+  TempDir dir;
+  const TruthWalk walk = drift_phantom(dir, "walk", Model::kWalk);
+  const TruthWalk rotation = drift_phantom(dir, "rotation", Model::kRotation);
+  const TruthWalk bowed = drift_phantom(dir, "bowed", Model::kBowed);
+  const TruthWalk heavy = drift_phantom(dir, "heavy", Model::kHeavy);
+  const std::size_t n = walk.dx.size();
+  ASSERT_EQ(n, 40u);
+  double rot_off = 0, bow_off = 0, bow_peak = 0;
+  for (std::size_t k = 0; k < n; ++k) {
+    rot_off = std::max(rot_off, std::fabs(rotation.rot[k] - walk.rot[k] - 0.02 * double(k)));
+    EXPECT_DOUBLE_EQ(rotation.dx[k], walk.dx[k]) << k;
+    const double bow = std::max(1.0, 0.02 * 192) * std::sin(vispack::kPi * double(k) / (n - 1));
+    bow_off = std::max(bow_off, std::fabs(bowed.dx[k] - walk.dx[k] - bow));
+    bow_off = std::max(bow_off, std::fabs(bowed.dy[k] - walk.dy[k] - bow));
+    bow_peak = std::max(bow_peak, bowed.dx[k] - walk.dx[k]);
+    EXPECT_DOUBLE_EQ(bowed.rot[k], walk.rot[k]) << k;
+  }
+  EXPECT_LT(rot_off, 1e-6);
+  EXPECT_LT(bow_off, 1e-6);
+  EXPECT_NEAR(bow_peak, 3.84, 0.01);  // 2 % of the small preset's 192 px height
+  const double k_walk = kurtosis(walk.dx), k_heavy = kurtosis(heavy.dx);
+  std::printf("step kurtosis: walk %.2f, heavy %.2f\n", k_walk, k_heavy);
+  EXPECT_LT(k_walk, 4.5);
+  EXPECT_GT(k_heavy, 6.0);
+
+  // A block jump of 3..6 px (the jump's shift replaces that slice's walk step).
+  const TruthWalk small_jump = drift_phantom(dir, "jump", Model::kWalk, true, 3, 6);
+  ASSERT_GT(small_jump.jump, 0);
+  const int j = small_jump.jump;
+  const double size =
+      std::hypot(small_jump.dx[j] - small_jump.dx[j - 1], small_jump.dy[j] - small_jump.dy[j - 1]);
+  EXPECT_GE(size, 3.0);
+  EXPECT_LE(size, 6.0);
+}
+
+TEST(PhantomCli, DriftModelAndJumpSizeErrors) {
+  TempDir dir;
+  const std::string cmd = bin("vispack-phantom") + " --quiet --preset tiny --out " + (dir / "p");
+  std::string out;
+  EXPECT_EQ(run_command(cmd + " --drift wobbly", &out), 2) << out;
+  EXPECT_NE(out.find("--drift 'wobbly': not walk, heavy, rotation or bowed"), std::string::npos)
+      << out;
+  EXPECT_EQ(run_command(cmd + " --jump-px 6", &out), 2) << out;
+  EXPECT_NE(out.find("--jump-px '6': expected MIN:MAX"), std::string::npos) << out;
+  EXPECT_EQ(run_command(cmd + " --jump-px 6:3", &out), 2) << out;
+  EXPECT_NE(out.find("needs 0 < MIN <= MAX <= 100 px"), std::string::npos) << out;
+  EXPECT_EQ(run_command(cmd + " --drift heavy --jump-px 3:6", &out), 0) << out;
+}

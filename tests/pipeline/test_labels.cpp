@@ -3,7 +3,6 @@
 // phantom's truth (true transforms, JPEG segmentation, and end to end through registration).
 #include <gtest/gtest.h>
 
-#include <chrono>
 #include <cmath>
 #include <filesystem>
 #include <random>
@@ -194,11 +193,8 @@ TEST(ColourMatcher, LargePaletteAgreesWithBruteForce) {
         c[k] = cv::saturate_cast<std::uint8_t>(int(e.colour[k]) + int(rng() % 7) - 3);
       slice.at<cv::Vec3b>(y, x) = c;
     }
-  auto start = std::chrono::steady_clock::now();
   LabelStats stats;
   cv::Mat ids = map_colours(slice, m, false, "noisy", &stats);
-  double ms =
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
   for (int y = 0; y < slice.rows; y += 7)
     for (int x = 0; x < slice.cols; x += 5) {
       cv::Vec3b c = slice.at<cv::Vec3b>(y, x);
@@ -206,9 +202,8 @@ TEST(ColourMatcher, LargePaletteAgreesWithBruteForce) {
     }
   EXPECT_EQ(stats.unmatched, 0u);
   EXPECT_EQ(stats.exact + stats.nearest, std::uint64_t(slice.total()));
-  // Generous bound (a 2-core machine shared with other builds); measured ~150 ms in Release.
-  EXPECT_LT(ms, 5000.0) << "1024x1024 noisy slice against 2,000 colours took " << ms << " ms";
-  std::printf("map_colours 1024x1024, 2000 colours: %.0f ms\n", ms);
+  // Its speed is a benchmark's business, not this test's (the labels row of the per-stage table,
+  // docs/BENCHMARKS.md "Each stage on one and two cores").
 }
 
 TEST(ColourMatcher, StrictModeNamesFileAndPixel) {

@@ -2,7 +2,6 @@
 // mask section that reruns mask and the later stages only.
 #include <gtest/gtest.h>
 
-#include <chrono>
 #include <map>
 
 #include "test_support.h"
@@ -43,13 +42,11 @@ TEST(Run, FullRunThenSkipThenPartialRerun) {
   EXPECT_EQ(first["vdb"].processed, 1);
   EXPECT_EQ(first["pack"].output, config.output);
 
-  auto start = std::chrono::steady_clock::now();
+  // A second run with nothing changed recomputes nothing (it checks only stats files and
+  // manifests; how long that takes is the start-up benchmark's business, not this test's).
   auto second = by_stage(run_pipeline(config, options));
-  double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   for (auto& [name, r] : second)
     EXPECT_EQ(r.processed, 0) << name << " reran with nothing changed";
-  // Checking only stats files and reads manifests: well under a second even on a busy 2-core box.
-  EXPECT_LT(seconds, 5.0);
 
   // Touch a key only the mask stage reads: mask and everything after it rerun, register does not.
   // (Register must list only the mask keys it reads, e.g. "mask.hu_threshold", in its StageRun.)

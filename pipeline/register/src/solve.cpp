@@ -420,6 +420,8 @@ constexpr double kSmoothSigmaDeg = 0.05;     // and of the rotation, per slice²
 // small body's rotation) or missing, and never integrate a measurement.
 constexpr double kWalkSigmaPx = 0.6;
 constexpr double kWalkSigmaDeg = 0.1;
+// A measured step beyond this many walk σ at the body cuts the prior (find_cuts).
+constexpr double kCutWalkSigmas = 4.0;
 
 // Sparse weighted least squares over a banded block (slices) and a dense border (free frames).
 class LeastSquares {
@@ -764,9 +766,20 @@ void CtStackSolver::find_cuts() {
       const Rigid d = relative(a1->t, a0->t, c_);
       const double lever =
           std::min(a0->fixed ? r0_ : rec0->lever_px, a1->fixed ? r0_ : rec1->lever_px);
+      auto at_body = [&](const Rigid& r) {
+        return std::hypot(r.dx_px, r.dy_px) + std::abs(r.rotation_deg) * kPi / 180.0 * lever;
+      };
+      const double step = at_body(d);
+      // A step under jump_px that the two anchors and the pair edge between them (which passed
+      // reject_pairs' gate against the anchors) agree on, and that the walk prior cannot
+      // produce (beyond kCutWalkSigmas of its step at the body), is measured, not drift: the
+      // prior is cut there too, else it spreads a small block jump (3..6 px, a few degrees)
+      // over its neighbours (docs/ARCHITECTURE.md, "Registration").
+      const double walk_step =
+          kCutWalkSigmas * std::hypot(kWalkSigmaPx, kWalkSigmaDeg * kPi / 180.0 * lever);
       cut_[std::size_t(i)] =
-          std::hypot(d.dx_px, d.dy_px) + std::abs(d.rotation_deg) * kPi / 180.0 * lever >
-          options_.jump_px;
+          step > options_.jump_px || (step > walk_step && primary_[std::size_t(i)] &&
+                                      at_body(primary_[std::size_t(i)]->relative) > walk_step);
     } else if (primary_[std::size_t(i)]) {
       cut_[std::size_t(i)] =
           rigid_motion_px(primary_[std::size_t(i)]->relative, size_) > options_.jump_px;

@@ -68,7 +68,20 @@ struct PhantomOptions {
   std::optional<bool> fiducials;  // the two fiducial tubes; nullopt = the preset's default
   bool drift = true;              // false: the random walk is exactly zero (camera offset stays)
   bool jump = true;               // false: no block jump
-  double ct_scale = 0;            // CT pixel / colour pixel; 0 = the preset's (0.25..16)
+  // How the true drift moves from slice to slice. kWalk: the Gaussian random walk (0.3 px, 0.05°
+  // per step) that the registration's prior also assumes. The others break that assumption, so a
+  // score shows what the solver does when the drift is not its prior: kHeavy, heavy-tailed steps
+  // (Student's t, 2 degrees of freedom, the same scale, capped at 15 σ: rare steps of a few px
+  // that are no block jump); kRotation, the walk plus a slow systematic rotation (0.02° per
+  // slice); kBowed, the walk plus a bowed stack (x and y follow half a sine over the stack,
+  // amplitude 2 % of the frame height, at least 1 px).
+  enum class DriftModel { kWalk, kHeavy, kRotation, kBowed };
+  DriftModel drift_model = DriftModel::kWalk;
+  // Block jump magnitude in px, drawn uniformly in [min, max]; 0, 0 = the preset's (7..9 px on
+  // frames under 128 px high, else 10..15 px). 3..6 px jumps lie at or below the default
+  // register.jump_px (6): the anchor, not the jump flag, has to catch them.
+  double jump_px_min = 0, jump_px_max = 0;
+  double ct_scale = 0;  // CT pixel / colour pixel; 0 = the preset's (0.25..16)
   // A CT slice only at every ct_every-th colour slice (k = 0, e, 2e, ...; written as ct_<k/e>),
   // config ct.slice_spacing_mm = e · slice spacing (issue 31: the VH female's 3:1, the Visible
   // Korean's 5:1). Colour slices beyond the last CT slice lie outside the CT's z range.
@@ -95,5 +108,9 @@ struct PhantomSummary {
 // Throws UsageError for bad options (unknown preset, slice count out of range, defects with
 // fewer than 6 slices), IoError when a file cannot be written.
 PhantomSummary make_phantom(const std::string& out_dir, const PhantomOptions& options);
+
+// "walk" | "heavy" | "rotation" | "bowed" (the command line's --drift); throws UsageError naming
+// the word otherwise.
+PhantomOptions::DriftModel parse_drift_model(const std::string& name);
 
 }  // namespace vispack::phantom
