@@ -101,11 +101,10 @@ TEST(BodyParts, MalePresetAgainstTruth) {
   // The case holds what it is for: several parts in most slices, ten toes at the end.
   EXPECT_GE(several, part_slices / 2);
   EXPECT_GE(most_parts, 10);
-  // The goal is 0.5 px; measured 0.562: the top of the head (slices 1-4, 1.2-3.0 px: a
-  // small round body whose rotation the anchors pin weakly, and the solve follows the pairs
-  // across the head cap) and the right arm resting on the table (slices 21-24, 0.57-0.78 px).
-  // Bound at what is reached, so that a regression shows.
-  EXPECT_LE(score.drift.body_rms_px, 0.6);
+  // The goal, 0.5 px over the frame on the body slices: measured 0.278 (0.562 while the
+  // first-order pair terms weighed a small body's pairs like a torso's: the head cap's pairs,
+  // off by up to 1°, pulled slices 1-6 by 0.2-0.7° from their right anchors).
+  EXPECT_LE(score.drift.body_rms_px, 0.5);
   EXPECT_EQ(score.jumps.false_jumps, 0);
   EXPECT_GE(score.mask.stack_iou, 0.98);
   EXPECT_GE(score.mask.min_body_iou, 0.95) << "slice " << score.mask.min_body_slice;
