@@ -123,8 +123,65 @@ cv::Mat open_disc(const cv::Mat& mask, int radius) {
   return out;
 }
 
+cv::Mat ct_tissue(const cv::Mat& ct_hu, double hu_threshold) {
+  return fill_holes(ct_hu_float(ct_hu) > hu_threshold);
+}
+
+namespace {
+
+// Continuity along z (outline.h): adds to `body` every part of `raw` that holds no body pixel,
+// is not thin and long, and has at least a quarter of its pixels on tissue in `z.needed` of the
+// neighbours. Returns the number of parts added.
+int add_continuing_parts(const cv::Mat& raw, const ZNeighbours& z, cv::Mat& body) {
+  for (const cv::Mat& t : z.tissue)
+    if (t.size() != raw.size())
+      throw Error(cat("ct_body_mask: a neighbouring CT slice is ", t.cols, "x", t.rows,
+                      ", the slice ", raw.cols, "x", raw.rows));
+  if (z.tissue.empty() || int(z.tissue.size()) < z.needed) return 0;
+  cv::Mat labels, stats, centroids;
+  const int n = cv::connectedComponentsWithStats(raw, labels, stats, centroids, 8, CV_32S);
+  if (n <= 1) return 0;
+  // Per part: holds body, pixels on each neighbour's tissue, largest inscribed radius.
+  std::vector<std::uint8_t> has_body(std::size_t(n), 0);
+  std::vector<std::vector<int>> on(z.tissue.size(), std::vector<int>(std::size_t(n), 0));
+  for (int y = 0; y < raw.rows; ++y) {
+    const int* l = labels.ptr<int>(y);
+    const std::uint8_t* b = body.ptr<std::uint8_t>(y);
+    for (int x = 0; x < raw.cols; ++x) {
+      if (l[x] == 0) continue;
+      if (b[x]) has_body[std::size_t(l[x])] = 1;
+      for (std::size_t t = 0; t < z.tissue.size(); ++t)
+        if (z.tissue[t].ptr<std::uint8_t>(y)[x]) ++on[t][std::size_t(l[x])];
+    }
+  }
+  std::vector<std::uint8_t> add(std::size_t(n), 0);
+  bool any = false;
+  for (int i = 1; i < n; ++i) {
+    if (has_body[std::size_t(i)]) continue;
+    const int area = stats.at<int>(i, cv::CC_STAT_AREA);
+    int continues = 0;
+    for (const auto& o : on)
+      continues += 4 * o[std::size_t(i)] >= area ? 1 : 0;
+    if (continues >= z.needed) add[std::size_t(i)] = 1, any = true;
+  }
+  if (!any) return 0;
+  // Not thin and long (a holder or table continues along z too): the part rule's shape test.
+  cv::Mat candidates = cv::Mat::zeros(raw.size(), CV_8UC1);
+  for (int y = 0; y < raw.rows; ++y) {
+    const int* l = labels.ptr<int>(y);
+    std::uint8_t* c = candidates.ptr<std::uint8_t>(y);
+    for (int x = 0; x < raw.cols; ++x)
+      if (add[std::size_t(l[x])]) c[x] = 255;
+  }
+  PartCounts added;
+  body |= body_parts(candidates, PartRule{}, &added);
+  return added.kept;
+}
+
+}  // namespace
+
 cv::Mat ct_body_mask(const cv::Mat& ct_hu, double hu_threshold, double min_part_px,
-                     PartCounts* counts) {
+                     PartCounts* counts, const ZNeighbours* z) {
   cv::Mat hu = ct_hu_float(ct_hu);
   // Holes filled first: a cavity near the body's edge (a sinus, an airway) leaves only a thin
   // band of tissue between it and the outside, which the opening below would cut off with the
@@ -135,8 +192,19 @@ cv::Mat ct_body_mask(const cv::Mat& ct_hu, double hu_threshold, double min_part_
   PartRule rule;
   rule.min_area_px = min_part_px;
   cv::Mat body = body_parts(open_disc(raw, kCtDetachPx), rule, counts);
+  // Continuity along z: the parts the opening or the minimum area dropped that continue into the
+  // neighbouring CT slices (none of them touches a kept part: the regrowth below leaves them).
+  auto continuing = [&](cv::Mat& mask) {
+    if (!z) return;
+    const int added = add_continuing_parts(raw, *z, mask);
+    if (counts && added > 0)
+      counts->kept += added, counts->removed = std::max(0, counts->removed - added);
+  };
   const cv::Rect bounds = cv::boundingRect(body);
-  if (bounds.empty()) return body;
+  if (bounds.empty()) {
+    continuing(body);
+    return body;
+  }
   // Grow back what the opening shaved off the parts' own edge, only within its radius + 1, and
   // none of a shaved-off piece that reaches beyond kHolderReachPx (a holder or table touching a
   // part). All of it lies within the parts' bounding box grown by kHolderReachPx; one more pixel
@@ -255,6 +323,7 @@ cv::Mat ct_body_mask(const cv::Mat& ct_hu, double hu_threshold, double min_part_
   }
   cv::Mat out = cv::Mat::zeros(body.size(), CV_8UC1);
   fill_holes(grown).copyTo(out(box));
+  continuing(out);
   return out;
 }
 

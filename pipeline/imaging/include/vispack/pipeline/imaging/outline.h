@@ -32,14 +32,21 @@
 //     brown or white, never bluer or greener than it is red: a part whose mean colour has
 //     G > R + kTissueColourSlack or B > R + kTissueColourSlack (gel, green fiducial tubes) is
 //     removed.
-// Not done yet: continuity along z (a small part that continues into its neighbours is body, an
-// isolated speck is not) needs the neighbouring slices, which the per-slice stages do not see;
-// the minimum area stands in for it.
+//   - continuity along z (CT, where the caller gives the neighbouring CT slices: ZNeighbours): a
+//     part of the threshold (holes filled) that the opening or the minimum area dropped, apart
+//     from the kept parts, is body when it continues along z: at least a quarter of its pixels
+//     lie on tissue (HU above the level, holes filled) in enough of the neighbouring CT slices
+//     (one of the two beside a CT slice; both CT slices a slice between them is blended from),
+//     and it is not thin and long. A finger tip or a toe of a few mm² continues into its
+//     neighbours; a speck of one CT slice (noise, a crumb) does not and goes. The minimum area
+//     is the fallback where no neighbour is given (the anchor's template, colour-only masks).
 //
 // Masks are CV_8UC1 with values 0 / 255; colour slices are CV_8UC3 in RGB order; distances in
 // RGB units (0..255 per channel); radii in pixels of the image they are given. All functions are
 // pure (inputs are not modified, results are new images) and thread-safe.
 #pragma once
+
+#include <vector>
 
 #include <opencv2/core.hpp>
 
@@ -93,11 +100,25 @@ cv::Mat ct_hu_float(const cv::Mat& ct_hu);
 // Throws InputError naming `what` unless `rgb` is a non-empty CV_8UC3 image.
 void require_rgb_slice(const cv::Mat& rgb, const char* what);
 
+// The CT slices next to one along z, for the continuity rule (above): the tissue of each (0/255,
+// the CT slice's size: HU above the level, holes filled; ct_tissue) and how many of them a small
+// part must continue into. Beside CT slice j: slices j − 1 and j + 1 (those that exist), needed
+// 1; a slice blended between CT slices a and b: a and b, needed 2 (a part of one CT slice only,
+// which the blend carries half way to the next, is still a speck).
+struct ZNeighbours {
+  std::vector<cv::Mat> tissue;
+  int needed = 1;
+};
+// The tissue of a CT slice for ZNeighbours: HU above `hu_threshold`, holes filled.
+cv::Mat ct_tissue(const cv::Mat& ct_hu, double hu_threshold);
+
 // The body at CT resolution (see above). `ct_hu`: CV_32F (or CV_16S) HU; `min_part_px`: the
 // minimum part area in CT pixels (mask.min_part_mm2 / CT pixel area); `counts` (optional): the
-// parts kept and removed by the rule.
+// parts kept and removed by the rule (a part kept for its continuity counts as kept);
+// `z` (optional): the neighbouring CT slices (continuity along z). Throws Error when a
+// neighbour's size differs from the slice's.
 cv::Mat ct_body_mask(const cv::Mat& ct_hu, double hu_threshold, double min_part_px,
-                     PartCounts* counts = nullptr);
+                     PartCounts* counts = nullptr, const ZNeighbours* z = nullptr);
 
 // Median colour (RGB) of a 4-pixel frame along the border of an RGB CV_8UC3 slice.
 cv::Vec3f estimate_gel_colour(const cv::Mat& rgb);
