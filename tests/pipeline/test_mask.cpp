@@ -99,6 +99,30 @@ TEST(Mask, CtMaskKeepsEveryBodyPartAndDropsHolders) {
   EXPECT_GT(iou(body, expect), 0.99);
 }
 
+// An elongated part is a holder or table by its shape unless the CT says it is soft tissue
+// (outline.h kSoftTissueMaxHu, kMaxTissueElongation): a crescent like a real cerebellum
+// (elongation about 8) at 30 HU is body; the same crescent at 250 HU (plastic) and a long band at
+// 30 HU (a gel pad, elongation about 20) are not.
+TEST(Mask, ElongatedPartOfSoftTissueIsBodyOfPlasticIsNot) {
+  auto crescent = [](cv::Mat& ct, cv::Point centre, float hu) {
+    cv::Mat part(ct.size(), CV_8U, cv::Scalar(0));
+    cv::ellipse(part, centre, {60, 30}, 0, 180, 360, cv::Scalar(255), 12);
+    ct.setTo(cv::Scalar(hu), part);
+    return part;
+  };
+  cv::Mat ct(200, 300, CV_32F, cv::Scalar(-1000));
+  const cv::Mat tissue = crescent(ct, {75, 60}, 30.f);
+  const cv::Mat plastic = crescent(ct, {225, 60}, 250.f);
+  cv::rectangle(ct, cv::Rect(20, 150, 260, 10), cv::Scalar(30), -1);  // a band of gel pad
+  vp::PartCounts counts;
+  const cv::Mat body = vp::ct_body_mask(ct, -500, 5.0, &counts);
+  EXPECT_EQ(counts.kept, 1);
+  EXPECT_EQ(counts.removed, 2);
+  EXPECT_GT(iou(body, tissue), 0.9);
+  EXPECT_EQ(cv::countNonZero(body & plastic), 0);
+  EXPECT_EQ(cv::countNonZero(body(cv::Rect(20, 150, 260, 10))), 0);
+}
+
 // mask.min_part_mm2 in mm² on the slice's plane: a part of 8×8 CT px at 1 mm (64 mm²) is body at
 // a minimum of 50 mm² and debris at 80 mm²; compute_mask turns the key into CT pixels through the
 // output pixel area and out_to_ct's scale (CT pixels 4× the output's: 0.25 mm output pixels).

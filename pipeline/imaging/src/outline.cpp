@@ -43,11 +43,13 @@ void require_rgb_slice(const cv::Mat& rgb, const char* what) {
 }
 
 cv::Mat body_parts(const cv::Mat& mask, const PartRule& rule, PartCounts* counts,
-                   const cv::Mat& rgb) {
+                   const cv::Mat& rgb, const cv::Mat& hu) {
   if (!rgb.empty()) {
     require_rgb_slice(rgb, "body_parts");
     if (rgb.size() != mask.size()) throw Error("body_parts: mask and slice differ in size");
   }
+  if (!hu.empty() && (hu.size() != mask.size() || hu.type() != CV_32FC1))
+    throw Error("body_parts: mask and CT slice differ in size (or the CT is not CV_32F)");
   if (counts) *counts = {};
   cv::Mat out = cv::Mat::zeros(mask.size(), CV_8UC1);
   // Only the parts' bounding box is examined.
@@ -78,17 +80,46 @@ cv::Mat body_parts(const cv::Mat& mask, const PartRule& rule, PartCounts* counts
         if (l[x] > 0) colour[std::size_t(l[x])] += cv::Vec3d(p[x][0], p[x][1], p[x][2]);
     }
   }
+  // Elongation per part (the distance transform counts from the pixel centre to the nearest
+  // outside centre: a disc of radius R reads about R + 0.5).
+  auto elongation = [&](int i) {
+    const double r = std::max(0.5, inscribed[std::size_t(i)]);
+    return stats.at<int>(i, cv::CC_STAT_AREA) / (kPi * r * r);
+  };
+  // The median HU of the CT parts that only the soft-tissue exception could keep.
+  std::vector<double> median_hu(std::size_t(n), 1e9);
+  if (!hu.empty() && rule.max_elongation > 0) {
+    std::vector<std::vector<float>> values(static_cast<std::size_t>(n));
+    std::vector<std::uint8_t> wanted(static_cast<std::size_t>(n), 0);
+    bool any = false;
+    for (int i = 1; i < n; ++i) {
+      const double e = elongation(i);
+      if (e > rule.max_elongation && e <= kMaxTissueElongation)
+        wanted[std::size_t(i)] = 1, any = true;
+    }
+    if (any) {
+      const cv::Mat h = hu(box);
+      for (int y = 0; y < m.rows; ++y) {
+        const int* l = labels.ptr<int>(y);
+        const float* v = h.ptr<float>(y);
+        for (int x = 0; x < m.cols; ++x)
+          if (wanted[std::size_t(l[x])]) values[std::size_t(l[x])].push_back(v[x]);
+      }
+      for (int i = 1; i < n; ++i) {
+        auto& v = values[std::size_t(i)];
+        if (v.empty()) continue;
+        std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+        median_hu[std::size_t(i)] = v[v.size() / 2];
+      }
+    }
+  }
   std::vector<std::uint8_t> keep(std::size_t(n), 0);
   int kept = 0;
   for (int i = 1; i < n; ++i) {
     const double area = stats.at<int>(i, cv::CC_STAT_AREA);
     bool body = area >= rule.min_area_px;
-    if (body && rule.max_elongation > 0) {
-      // The distance transform counts from the pixel centre to the nearest outside centre: a
-      // disc of radius R reads about R + 0.5.
-      const double r = std::max(0.5, inscribed[std::size_t(i)]);
-      body = area / (kPi * r * r) <= rule.max_elongation;
-    }
+    if (body && rule.max_elongation > 0)
+      body = elongation(i) <= rule.max_elongation || median_hu[std::size_t(i)] <= kSoftTissueMaxHu;
     if (body && !rgb.empty()) {
       const cv::Vec3d mean = colour[std::size_t(i)] / area;
       body = mean[1] <= mean[0] + kTissueColourSlack && mean[2] <= mean[0] + kTissueColourSlack;
@@ -132,7 +163,8 @@ namespace {
 // Continuity along z (outline.h): adds to `body` every part of `raw` that holds no body pixel,
 // is not thin and long, and has at least a quarter of its pixels on tissue in `z.needed` of the
 // neighbours. Returns the number of parts added.
-int add_continuing_parts(const cv::Mat& raw, const ZNeighbours& z, cv::Mat& body) {
+int add_continuing_parts(const cv::Mat& raw, const cv::Mat& hu, const ZNeighbours& z,
+                         cv::Mat& body) {
   for (const cv::Mat& t : z.tissue)
     if (t.size() != raw.size())
       throw Error(cat("ct_body_mask: a neighbouring CT slice is ", t.cols, "x", t.rows,
@@ -174,7 +206,7 @@ int add_continuing_parts(const cv::Mat& raw, const ZNeighbours& z, cv::Mat& body
       if (add[std::size_t(l[x])]) c[x] = 255;
   }
   PartCounts added;
-  body |= body_parts(candidates, PartRule{}, &added);
+  body |= body_parts(candidates, PartRule{}, &added, cv::Mat(), hu);
   return added.kept;
 }
 
@@ -191,12 +223,12 @@ cv::Mat ct_body_mask(const cv::Mat& ct_hu, double hu_threshold, double min_part_
   // (outline.h: the part rule).
   PartRule rule;
   rule.min_area_px = min_part_px;
-  cv::Mat body = body_parts(open_disc(raw, kCtDetachPx), rule, counts);
+  cv::Mat body = body_parts(open_disc(raw, kCtDetachPx), rule, counts, cv::Mat(), hu);
   // Continuity along z: the parts the opening or the minimum area dropped that continue into the
   // neighbouring CT slices (none of them touches a kept part: the regrowth below leaves them).
   auto continuing = [&](cv::Mat& mask) {
     if (!z) return;
-    const int added = add_continuing_parts(raw, *z, mask);
+    const int added = add_continuing_parts(raw, hu, *z, mask);
     if (counts && added > 0)
       counts->kept += added, counts->removed = std::max(0, counts->removed - added);
   };

@@ -59,7 +59,8 @@ std::string MaskStageJob::input_fingerprint(int k) const {
   // a new transforms.json reruns every slice).
   const CtAtZ at = ct_at_colour_slice(config_, int(inputs_.ct.size()), k);
   Fingerprint fp;
-  // v2: colour from the input slice; v3: every body part; v4: continuity along z.
+  // v2: colour from the input slice; v3: every body part; v4: continuity along z, elongated
+  // parts of soft tissue.
   fp.text("mask-v4").file(inputs_.rgb[std::size_t(k)].path);
   if (at.inside()) fp.file(inputs_.ct[std::size_t(at.below)].path);
   // v4: the part rule's continuity along z reads the CT slices beside an exact one.

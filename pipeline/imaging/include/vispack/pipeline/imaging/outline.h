@@ -25,7 +25,11 @@
 //     largest inscribed radius (the maximum of its distance transform): 1 for a disc, a/b for an
 //     ellipse, 4L/(π t) for a band of length L and thickness t. Body cross-sections are compact
 //     (torso 1.5–2.5, a foot's sole plane about 3, a finger about 1); a head-holder arc or a
-//     table is a band (10 and more). Parts above kMaxPartElongation are removed. In the CT, a
+//     table is a band (10 and more). Parts above kMaxPartElongation are removed, except in the
+//     CT a part whose median HU is soft tissue's (≤ kSoftTissueMaxHu: holders and tables are
+//     plastic, 130–300 HU in the head CT, 200 in the phantoms) and that is not a band
+//     (elongation ≤ kMaxTissueElongation): a real brain's cerebellum is a crescent of
+//     elongation 7.4, brain tissue at 30 HU. In the CT, a
 //     thin spot of a band that the opening left (inscribed radius ≤ kCtDetachPx + 1.5) and that
 //     touches a shaved-off piece larger than itself is a fragment of that band: removed.
 //   - colour (colour only, when the slice is given): tissue in a cryosection is red, pink, cream,
@@ -69,6 +73,11 @@ inline double mask_edge_level_hu(double hu_threshold) {
 inline constexpr int kHolderReachPx = 3 * (kCtDetachPx + 1);
 // Parts more elongated than this (area / (π r²), r the largest inscribed radius) are holders.
 inline constexpr double kMaxPartElongation = 7.0;
+// A CT part more elongated than kMaxPartElongation is still body when its median HU is at most
+// this (fat, muscle, brain; holders and tables are denser plastic) and its elongation at most
+// kMaxTissueElongation (a band of tissue-like HU, a gel pad or a cable, is not body).
+inline constexpr double kSoftTissueMaxHu = 100.0;
+inline constexpr double kMaxTissueElongation = 2.0 * kMaxPartElongation;
 // RGB units by which a tissue part's mean green or blue may exceed its mean red.
 inline constexpr double kTissueColourSlack = 10.0;
 
@@ -85,10 +94,12 @@ struct PartCounts {
 };
 // The part rule (above) on a 0/255 mask: every 8-connected part that passes is kept. The shape
 // test reads the parts' outlines: fill their holes first (fill_holes). With a
-// non-empty `rgb` (CV_8UC3, same size) the colour test applies too. `counts` (optional) receives
-// the parts kept and removed. Throws Error when `rgb` differs in size.
+// non-empty `rgb` (CV_8UC3, same size) the colour test applies too; with a non-empty `hu`
+// (CV_32F HU, same size: the CT) an elongated part of soft tissue's HU stays. `counts`
+// (optional) receives the parts kept and removed. Throws Error when `rgb` or `hu` differs in
+// size.
 cv::Mat body_parts(const cv::Mat& mask, const PartRule& rule, PartCounts* counts = nullptr,
-                   const cv::Mat& rgb = cv::Mat());
+                   const cv::Mat& rgb = cv::Mat(), const cv::Mat& hu = cv::Mat());
 // Fills holes: background not 4-connected to the image border becomes 255.
 cv::Mat fill_holes(const cv::Mat& mask);
 // Opening with a disc of `radius` pixels (radius 0: unchanged).
