@@ -30,13 +30,16 @@ inline pipeline::Config make_phantom_case(const std::filesystem::path& dir,
   return pipeline::load_config(dir / "config.json");
 }
 
-// The head-CT sample folder ($VISPACK_SAMPLES_DIR or <source>/data/samples, then /head-ct), or ""
-// when it has not been fetched (scripts/fetch-sample-data.sh head-ct).
-inline std::string head_ct_sample() {
+// A sample folder ($VISPACK_SAMPLES_DIR or <source>/data/samples, then /<name>), or "" when it
+// has not been fetched (scripts/fetch-sample-data.sh <name>).
+inline std::string sample_folder(const std::string& name) {
   const char* env = std::getenv("VISPACK_SAMPLES_DIR");
   const std::string sample =
-      (env && *env ? std::string(env) : source_dir() + "/data/samples") + "/head-ct";
+      (env && *env ? std::string(env) : source_dir() + "/data/samples") + "/" + name;
   return std::filesystem::exists(sample + "/.stamp") ? sample : "";
+}
+inline std::string head_ct_sample() {
+  return sample_folder("head-ct");
 }
 
 // Stage options for a whole, quiet, unforced run.

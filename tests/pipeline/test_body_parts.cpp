@@ -18,6 +18,7 @@
 #include "phantom_case.h"
 #include "test_support.h"
 #include "vispack/common/nrrd.h"
+#include "vispack/phantom/from_ct.h"
 #include "vispack/phantom/score.h"
 #include "vispack/pipeline/core/work_layout.h"
 #include "vispack/pipeline/imaging/slice_io.h"
@@ -48,6 +49,56 @@ Parts parts_kept(const cv::Mat& truth, const cv::Mat& mask, double fraction) {
   return p;
 }
 
+// Over the stack, against truth/mask.nrrd: the slices with parts of ≥ 0.5 % of their body, those
+// where the mask keeps every one, those with several, the most parts of a slice; and the mask
+// pixels on rows [row0, row1) that the truth does not hold (a table), of all mask pixels.
+struct StackParts {
+  int slices = 0, all_kept = 0, several = 0, most = 0;
+  double table_px = 0, mask_px = 0;
+};
+StackParts stack_parts(const vispack::NrrdVolume& truth, const vp::Config& config, int row0 = 0,
+                       int row1 = 0) {
+  const int w = int(truth.dims[0]), h = int(truth.dims[1]), n = int(truth.dims[2]);
+  StackParts s;
+  for (int k = 0; k < n; ++k) {
+    const cv::Mat t = cv::Mat(h, w, CV_8U,
+                              const_cast<std::uint8_t*>(truth.as<std::uint8_t>()) +
+                                  std::size_t(k) * std::size_t(w) * std::size_t(h)) > 0;
+    const cv::Mat m = vp::read_slice(vp::mask_path(config, k)) > 0;
+    s.mask_px += cv::countNonZero(m);
+    if (row0 < row1)
+      s.table_px += cv::countNonZero(m.rowRange(row0, row1) & ~t.rowRange(row0, row1));
+    const Parts p = parts_kept(t, m, 0.005);
+    if (p.counted == 0) continue;
+    ++s.slices;
+    if (p.kept == p.counted) ++s.all_kept;
+    if (p.counted > 1) ++s.several;
+    s.most = std::max(s.most, p.counted);
+  }
+  return s;
+}
+
+void print_case(const char* name, const vph::Score& score, const StackParts& parts) {
+  std::printf(
+      "%s: drift over the frame (body slices) rms %.3f px (%d slices), over the body %.3f px; "
+      "jumps found %d, false %d; mask stack IoU %.4f, worst %.4f (slice %d); labels %.4f; parts "
+      "all kept on %d of %d slices (%d with several, up to %d); table %.0f px of %.0f mask px\n",
+      name, score.drift.body_rms_px, score.drift.body_slices, score.drift.over_body_rms_px,
+      score.jumps.found, score.jumps.false_jumps, score.mask.stack_iou, score.mask.min_body_iou,
+      score.mask.min_body_slice, score.labels.overall, parts.all_kept, parts.slices, parts.several,
+      parts.most, parts.table_px, parts.mask_px);
+}
+
+// The numbers on a case with truth (drift over the frame on the body slices).
+void expect_body_part_goals(const vph::Score& score, const StackParts& parts) {
+  EXPECT_LE(score.drift.body_rms_px, 0.5);
+  EXPECT_EQ(score.jumps.false_jumps, 0);
+  EXPECT_GE(score.mask.stack_iou, 0.98);
+  EXPECT_GE(score.mask.min_body_iou, 0.95) << "slice " << score.mask.min_body_slice;
+  EXPECT_GE(score.labels.overall, 0.995);
+  EXPECT_GE(parts.all_kept, 0.99 * parts.slices);
+}
+
 }  // namespace
 
 TEST(BodyParts, MalePresetAgainstTruth) {
@@ -59,39 +110,18 @@ TEST(BodyParts, MalePresetAgainstTruth) {
 
   // Parts and table pixels, slice by slice, against truth/mask.nrrd.
   const vispack::NrrdVolume truth = vispack::read_nrrd(dir / "truth/mask.nrrd");
-  const int w = int(truth.dims[0]), h = int(truth.dims[1]), n = int(truth.dims[2]);
+  const int h = int(truth.dims[1]), n = int(truth.dims[2]);
   std::ifstream tf(dir / "truth/transforms.json");
   const nlohmann::json tj = nlohmann::json::parse(tf);
   const double table_top = tj.at("table_rows_px")[0].get<double>(),
                table_bottom = tj.at("table_rows_px")[1].get<double>();
+  // Mask pixels on the table's rows that the truth does not hold: the table (or the gel next to
+  // it).
   const int row0 = std::max(0, int(std::floor(table_top)) - 1),
             row1 = std::min(h, int(std::ceil(table_bottom)) + 1);
   ASSERT_LT(row0, row1);
-  int part_slices = 0, all_kept = 0, several = 0, most_parts = 0;
-  double table_px = 0, mask_px = 0;
-  for (int k = 0; k < n; ++k) {
-    const cv::Mat t = cv::Mat(h, w, CV_8U,
-                              const_cast<std::uint8_t*>(truth.as<std::uint8_t>()) +
-                                  std::size_t(k) * std::size_t(w) * std::size_t(h)) > 0;
-    const cv::Mat m = vp::read_slice(vp::mask_path(config, k)) > 0;
-    mask_px += cv::countNonZero(m);
-    // Mask pixels on the table's rows that the truth does not hold: the table (or the gel
-    // next to it).
-    table_px += cv::countNonZero(m.rowRange(row0, row1) & ~t.rowRange(row0, row1));
-    const Parts p = parts_kept(t, m, 0.005);
-    if (p.counted == 0) continue;
-    ++part_slices;
-    if (p.kept == p.counted) ++all_kept;
-    if (p.counted > 1) ++several;
-    most_parts = std::max(most_parts, p.counted);
-  }
-  std::printf(
-      "male-small: drift body rms %.3f px (%d slices), false jumps %d; mask stack IoU %.4f, "
-      "worst %.4f (slice %d); labels %.4f; parts all kept on %d of %d slices (%d with several, "
-      "up to %d); table %.0f px of %.0f mask px\n",
-      score.drift.body_rms_px, score.drift.body_slices, score.jumps.false_jumps,
-      score.mask.stack_iou, score.mask.min_body_iou, score.mask.min_body_slice,
-      score.labels.overall, all_kept, part_slices, several, most_parts, table_px, mask_px);
+  const StackParts parts = stack_parts(truth, config, row0, row1);
+  print_case("male-small", score, parts);
   for (std::size_t k = 0; k < score.drift.error_px.size(); ++k)
     if (score.drift.error_px[k] > 0.5)
       std::printf("  slice %zu: drift error %.2f px\n", k, score.drift.error_px[k]);
@@ -99,25 +129,19 @@ TEST(BodyParts, MalePresetAgainstTruth) {
   RecordProperty("stack_iou", std::to_string(score.mask.stack_iou));
   RecordProperty("min_body_iou", std::to_string(score.mask.min_body_iou));
   // The case holds what it is for: several parts in most slices, ten toes at the end.
-  EXPECT_GE(several, part_slices / 2);
-  EXPECT_GE(most_parts, 10);
-  // The goal is 0.5 px; measured 0.562: the top of the head (slices 1-4, 1.2-3.0 px: a
-  // small round body whose rotation the anchors pin weakly, and the solve follows the pairs
-  // across the head cap) and the right arm resting on the table (slices 21-24, 0.57-0.78 px).
-  // Bound at what is reached, so that a regression shows.
-  EXPECT_LE(score.drift.body_rms_px, 0.6);
-  EXPECT_EQ(score.jumps.false_jumps, 0);
-  EXPECT_GE(score.mask.stack_iou, 0.98);
-  EXPECT_GE(score.mask.min_body_iou, 0.95) << "slice " << score.mask.min_body_slice;
-  EXPECT_GE(score.labels.overall, 0.995);
-  EXPECT_GE(all_kept, 0.99 * part_slices);
-  EXPECT_LE(table_px, 0.001 * mask_px);
+  EXPECT_GE(parts.several, parts.slices / 2);
+  EXPECT_GE(parts.most, 10);
+  // The goal, 0.5 px over the frame on the body slices: measured 0.278 (0.562 while the
+  // first-order pair terms weighed a small body's pairs like a torso's: the head cap's pairs,
+  // off by up to 1°, pulled slices 1-6 by 0.2-0.7° from their right anchors).
+  expect_body_part_goals(score, parts);
+  EXPECT_LE(parts.table_px, 0.001 * parts.mask_px);
   // The mask stage's report counts the parts kept and removed per slice.
   std::ifstream rf(config.work_dir + "/mask/report.json");
   const nlohmann::json report = nlohmann::json::parse(rf);
-  const nlohmann::json& parts = report.at("quality").at("parts");
-  EXPECT_EQ(int(parts.size()), n);
-  EXPECT_GE(parts.at(std::to_string(n / 2)).at("kept").get<int>(), 1);
+  const nlohmann::json& reported = report.at("quality").at("parts");
+  EXPECT_EQ(int(reported.size()), n);
+  EXPECT_GE(reported.at(std::to_string(n / 2)).at("kept").get<int>(), 1);
   // The register stage's report: the parts each modality showed to the anchor (the torso and an
   // arm on each side where the gaps are widest, t 0.2-0.45: the CT merges an arm 2 px away; two
   // legs, t 0.8-0.9) and the slices where they change abruptly (arms and legs, the toes).
@@ -159,4 +183,53 @@ TEST(BodyParts, AbruptAnchorChanges) {
   j.erase("parts_ct");
   j.erase("parts_colour");
   EXPECT_EQ(vp::anchor_from_json(j, "test").parts_ct, 0);
+}
+
+// A case from a real volume with several parts in most slices, with its own truth: the Colin27
+// brain of the AAL sample (Debian mricron-data; scripts/fetch-sample-data.sh aal), its lowest
+// axial slices (NIfTI k 10-45): the two cerebellar hemispheres apart and of nearly the same size
+// (as two legs are), then the two temporal lobes beside the cerebellum (three parts), joined into
+// one brain above. A CT is made from it (the atlas' labelled voxels are body, 10-50 HU from the
+// T1 for texture; air elsewhere) and the from-CT model synthesises the colour slices (drift, a
+// jump, gel, lighting) and the truth at twice the CT's resolution; register, mask and labels are
+// scored against it with the numbers.
+TEST(BodyParts, RealBrainSlicesWithSeveralParts) {
+  const std::string sample = vispack::test::sample_folder("aal");
+  if (sample.empty())
+    GTEST_SKIP() << "aal sample not fetched (run scripts/fetch-sample-data.sh aal)";
+  const vispack::NrrdVolume atlas = vispack::read_nrrd(sample + "/truth/labels.nrrd");
+  vph::CtVolume ct;
+  ct.width = int(atlas.dims[0]), ct.height = int(atlas.dims[1]), ct.slices = int(atlas.dims[2]);
+  ct.source = sample + " (AAL labels as body, T1 as texture)";
+  ct.hu.resize(std::size_t(ct.width) * ct.height * ct.slices);
+  const std::size_t plane = std::size_t(ct.width) * ct.height;
+  for (int k = 0; k < ct.slices; ++k) {
+    char name[32];
+    std::snprintf(name, sizeof name, "/t1/t1_%04d.png", k);
+    const cv::Mat t1 = vp::read_slice(sample + name);  // 16 bit: T1 · 257
+    ASSERT_EQ(t1.size(), cv::Size(ct.width, ct.height)) << name;
+    const std::uint16_t* labels = atlas.as<std::uint16_t>() + plane * std::size_t(k);
+    for (int y = 0; y < ct.height; ++y)
+      for (int x = 0; x < ct.width; ++x) {
+        const std::size_t i = std::size_t(y) * ct.width + x;
+        ct.hu[plane * std::size_t(k) + i] =
+            labels[i] ? std::int16_t(10 + 40 * t1.at<std::uint16_t>(y, x) / 65535) : -1000;
+      }
+  }
+  TempDir dir("vispack-brain-parts");
+  vph::FromCtOptions o;
+  o.seed = 2, o.first = 10, o.slices = 36, o.quiet = true;
+  vph::make_phantom_from_ct(dir.path(), ct, o);
+  const vp::Config config = vp::load_config(dir / "config.json");
+  const vph::Score score = vispack::test::run_stages_and_score(dir.path(), config);
+  ASSERT_TRUE(score.has_mask);
+  const StackParts parts = stack_parts(vispack::read_nrrd(dir / "truth/mask.nrrd"), config);
+  print_case("brain", score, parts);
+  RecordProperty("drift_body_rms_px", std::to_string(score.drift.body_rms_px));
+  RecordProperty("stack_iou", std::to_string(score.mask.stack_iou));
+  // The case holds what it is for: several parts on most slices.
+  EXPECT_GE(parts.several, parts.slices / 2);
+  EXPECT_GE(parts.most, 3);
+  EXPECT_EQ(score.jumps.found, 1);
+  expect_body_part_goals(score, parts);
 }

@@ -2,6 +2,7 @@
 // phantom against truth/mask.nrrd; command-line exit codes.
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 
@@ -17,6 +18,7 @@
 #include "vispack/pipeline/core/stage_run.h"
 #include "vispack/pipeline/core/work_layout.h"
 #include "vispack/pipeline/imaging/ct_resample.h"
+#include "vispack/pipeline/imaging/intermediates.h"
 #include "vispack/pipeline/imaging/slice_io.h"
 #include "vispack/pipeline/labels/labels_stage.h"
 #include "vispack/pipeline/mask/mask.h"
@@ -97,6 +99,30 @@ TEST(Mask, CtMaskKeepsEveryBodyPartAndDropsHolders) {
   EXPECT_GT(iou(body, expect), 0.99);
 }
 
+// An elongated part is a holder or table by its shape unless the CT says it is soft tissue
+// (outline.h kSoftTissueMaxHu, kMaxTissueElongation): a crescent like a real cerebellum
+// (elongation about 8) at 30 HU is body; the same crescent at 250 HU (plastic) and a long band at
+// 30 HU (a gel pad, elongation about 20) are not.
+TEST(Mask, ElongatedPartOfSoftTissueIsBodyOfPlasticIsNot) {
+  auto crescent = [](cv::Mat& ct, cv::Point centre, float hu) {
+    cv::Mat part(ct.size(), CV_8U, cv::Scalar(0));
+    cv::ellipse(part, centre, {60, 30}, 0, 180, 360, cv::Scalar(255), 12);
+    ct.setTo(cv::Scalar(hu), part);
+    return part;
+  };
+  cv::Mat ct(200, 300, CV_32F, cv::Scalar(-1000));
+  const cv::Mat tissue = crescent(ct, {75, 60}, 30.f);
+  const cv::Mat plastic = crescent(ct, {225, 60}, 250.f);
+  cv::rectangle(ct, cv::Rect(20, 150, 260, 10), cv::Scalar(30), -1);  // a band of gel pad
+  vp::PartCounts counts;
+  const cv::Mat body = vp::ct_body_mask(ct, -500, 5.0, &counts);
+  EXPECT_EQ(counts.kept, 1);
+  EXPECT_EQ(counts.removed, 2);
+  EXPECT_GT(iou(body, tissue), 0.9);
+  EXPECT_EQ(cv::countNonZero(body & plastic), 0);
+  EXPECT_EQ(cv::countNonZero(body(cv::Rect(20, 150, 260, 10))), 0);
+}
+
 // mask.min_part_mm2 in mm² on the slice's plane: a part of 8×8 CT px at 1 mm (64 mm²) is body at
 // a minimum of 50 mm² and debris at 80 mm²; compute_mask turns the key into CT pixels through the
 // output pixel area and out_to_ct's scale (CT pixels 4× the output's: 0.25 mm output pixels).
@@ -119,6 +145,112 @@ TEST(Mask, MinimumPartAreaInSquareMillimetres) {
   EXPECT_EQ(dropped.mask.at<std::uint8_t>(4 * 32, 4 * 52), 0);
   EXPECT_EQ(dropped.mask.at<std::uint8_t>(4 * 32, 4 * 24), 255);
   EXPECT_THROW(vp::compute_mask(rgb, &ct, out_to_ct, options, 0.0), vispack::Error);
+}
+
+// Continuity along z (outline.h ZNeighbours), against the drawn truth: five CT slices (1 mm
+// pixels) of a torso with a finger tip of about 9 mm² in slices 1-3 (moving one pixel a slice),
+// below mask.min_part_mm2 (20 mm²) and too thin for the CT opening, and a speck of the same size
+// in slice 2 only. Beside CT slice 2 (neighbours 1 and 3, one needed) and between slices 2 and 3
+// (the blend; both needed) the finger tip is body and the speck is not; without neighbours the
+// minimum area decides and the finger tip goes too.
+TEST(Mask, SmallPartThatContinuesAlongZIsBodyAnIsolatedSpeckIsNot) {
+  const cv::Point torso(40, 48), speck(18, 75);
+  auto finger = [](int slice) { return cv::Point(75 + slice, 48); };
+  auto ct_slice = [&](int slice) {
+    cv::Mat ct(96, 96, CV_32F, cv::Scalar(-1000));
+    cv::circle(ct, torso, 24, cv::Scalar(40), -1);
+    if (slice >= 1 && slice <= 3) cv::circle(ct, finger(slice), 1, cv::Scalar(40), -1);
+    if (slice == 2) cv::circle(ct, speck, 1, cv::Scalar(40), -1);
+    return ct;
+  };
+  // The output grid: 2 px per CT px; the colour shows tissue where the CT does (the truth).
+  const cv::Matx23d out_to_ct(0.5, 0, 0, 0, 0.5, 0);
+  auto truth = [&](double slice_z, bool with_speck) {
+    cv::Mat t(192, 192, CV_8U, cv::Scalar(0));
+    cv::circle(t, torso * 2, 48, cv::Scalar(255), -1);
+    cv::circle(t, finger(0) * 2 + cv::Point(int(std::lround(2 * slice_z)), 0), 2, cv::Scalar(255),
+               -1);
+    if (with_speck) cv::circle(t, speck * 2, 2, cv::Scalar(255), -1);
+    return t;
+  };
+  auto colour = [&](const cv::Mat& t) {
+    cv::Mat rgb(t.size(), CV_8UC3, cv::Scalar(40, 70, 160));
+    rgb.setTo(cv::Scalar(190, 120, 100), t);
+    return rgb;
+  };
+  vp::MaskOptions options;
+  options.min_part_mm2 = 20;
+  const double pixel_mm2 = 0.5 * 0.5;
+  const double level = vp::mask_edge_level_hu(options.hu_threshold);
+  // Pixels of the finger tip (and of the speck) the mask keeps, within 4 output px of it.
+  auto kept_near = [](const cv::Mat& mask, cv::Point at) {
+    return cv::countNonZero(mask(cv::Rect(at.x - 4, at.y - 4, 9, 9)));
+  };
+  struct Case {
+    const char* what;
+    cv::Mat ct;
+    vp::ZNeighbours z;
+    double z_slice;
+  };
+  cv::Mat blend;
+  cv::addWeighted(ct_slice(2), 0.5, ct_slice(3), 0.5, 0.0, blend);
+  const std::vector<Case> cases = {
+      {"beside CT slice 2",
+       ct_slice(2),
+       {{vp::ct_tissue(ct_slice(1), level), vp::ct_tissue(ct_slice(3), level)}, 1},
+       2.0},
+      {"between CT slices 2 and 3",
+       blend,
+       {{vp::ct_tissue(ct_slice(2), level), vp::ct_tissue(ct_slice(3), level)}, 2},
+       2.5},
+  };
+  for (const Case& c : cases) {
+    const cv::Mat t = truth(c.z_slice, false);
+    const cv::Point tip = finger(0) * 2 + cv::Point(int(std::lround(2 * c.z_slice)), 0);
+    const vp::MaskSlice m = vp::compute_mask(colour(truth(c.z_slice, true)), &c.ct, out_to_ct,
+                                             options, pixel_mm2, &c.z);
+    const int tip_area = cv::countNonZero(t(cv::Rect(tip.x - 4, tip.y - 4, 9, 9)));
+    EXPECT_GE(kept_near(m.mask, tip), tip_area / 2) << c.what << ": the finger tip is body";
+    EXPECT_LE(cv::countNonZero(m.mask & ~t), 12) << c.what;
+    EXPECT_EQ(kept_near(m.mask, speck * 2), 0) << c.what << ": the isolated speck is not";
+    EXPECT_GT(iou(m.mask > 0, t), 0.97) << c.what;
+    EXPECT_EQ(m.parts.kept, 2) << c.what;
+    // Without the neighbours the minimum area decides: the finger tip goes with the speck.
+    const vp::MaskSlice alone =
+        vp::compute_mask(colour(truth(c.z_slice, true)), &c.ct, out_to_ct, options, pixel_mm2);
+    EXPECT_EQ(kept_near(alone.mask, tip), 0) << c.what;
+  }
+  // A neighbour of another size is refused, naming it.
+  vp::ZNeighbours wrong{{cv::Mat(10, 10, CV_8U, cv::Scalar(0))}, 1};
+  EXPECT_THROW(vp::ct_body_mask(ct_slice(2), level, 80, nullptr, &wrong), vispack::Error);
+}
+
+// The mask stage gives each slice its CT neighbours along z (intermediates.h CtSlice::z): on a CT
+// slice the two beside it (one at the stack's ends), one of them needed; between two CT slices
+// those two, both needed. The tiny phantom with a CT slice at every third colour slice.
+TEST(MaskStage, CtSliceCarriesItsNeighboursAlongZ) {
+  TempDir dir("vispack-mask-z");
+  vph::PhantomOptions po;
+  po.preset = "tiny", po.slices = 10, po.ct_every = 3, po.quiet = true;  // seed 1
+  vph::make_phantom(dir.path(), po);
+  const vp::Config config = vp::load_config(dir / "config.json");
+  vp::run_register_stage(config, vispack::test::quiet_stage_options());
+  const vp::StackInputs inputs = vp::read_stack_inputs(config);
+  ASSERT_EQ(inputs.ct.size(), 4u);
+  const vp::CtSlice first = vp::read_ct_slice(config, inputs, 0, true);  // CT slice 0
+  EXPECT_EQ(first.z.tissue.size(), 1u);
+  EXPECT_EQ(first.z.needed, 1);
+  const vp::CtSlice on = vp::read_ct_slice(config, inputs, 3, true);  // CT slice 1
+  ASSERT_EQ(on.z.tissue.size(), 2u);
+  EXPECT_EQ(on.z.needed, 1);
+  const double level = vp::mask_edge_level_hu(config.mask.hu_threshold);
+  const cv::Mat ct2 = vp::read_ct_slice(config, inputs, 6).hu;
+  EXPECT_EQ(cv::countNonZero(on.z.tissue[1] != vp::ct_tissue(ct2, level)), 0);
+  const vp::CtSlice between = vp::read_ct_slice(config, inputs, 4, true);  // CT 1 and 2
+  ASSERT_EQ(between.z.tissue.size(), 2u);
+  EXPECT_EQ(between.z.needed, 2);
+  EXPECT_EQ(cv::countNonZero(between.z.tissue[1] != vp::ct_tissue(ct2, level)), 0);
+  EXPECT_TRUE(vp::read_ct_slice(config, inputs, 4).z.tissue.empty());  // not for the mask
 }
 
 // Colour-only: two legs of nearly equal size are both body; a green fiducial tube the size of a

@@ -88,18 +88,38 @@ CtSlice read_ct_slice(const Config& config, const StackInputs& inputs, int index
   if (!at.inside()) return ct;
   ct.path = inputs.ct[std::size_t(at.nearest())].path;
   ct.hu = ct_hu_at_colour_slice(config, inputs.ct, index);
+  const double level = mask_edge_level_hu(config.mask.hu_threshold);
+  auto neighbour_size = [&](const cv::Mat& hu, const std::string& path) {
+    if (hu.size() != ct.hu.size())
+      throw InputError(cat(path, ": CT slice is ", hu.cols, "x", hu.rows, ", its neighbour ",
+                           ct.hu.cols, "x", ct.hu.rows));
+    return hu;
+  };
   if (for_mask && !at.exact()) {
-    const double level = mask_edge_level_hu(config.mask.hu_threshold);
     // The part rule's minimum area (mask.min_part_mm2) in CT pixels.
     const double min_part_ct_px = config.mask.min_part_mm2 /
                                   (config.ct->pixel_spacing_mm[0] * config.ct->pixel_spacing_mm[1]);
-    const cv::Mat below = ct_body_mask(
-        read_ct_hu(*config.ct, inputs.ct[std::size_t(at.below)].path), level, min_part_ct_px);
-    const cv::Mat above = ct_body_mask(
-        read_ct_hu(*config.ct, inputs.ct[std::size_t(at.above)].path), level, min_part_ct_px);
+    const std::string& below_path = inputs.ct[std::size_t(at.below)].path;
+    const std::string& above_path = inputs.ct[std::size_t(at.above)].path;
+    const cv::Mat hu_below = read_ct_hu(*config.ct, below_path);
+    const cv::Mat hu_above = read_ct_hu(*config.ct, above_path);
+    const cv::Mat below = ct_body_mask(hu_below, level, min_part_ct_px);
+    const cv::Mat above = ct_body_mask(hu_above, level, min_part_ct_px);
     const int n_below = cv::countNonZero(below), n_above = cv::countNonZero(above);
     ct.body_ends = n_below == 0 || n_above == 0 ||
                    cv::countNonZero(below & above) < 0.5 * std::min(n_below, n_above);
+    // Continuity along z: a part must be in both CT slices of the blend.
+    ct.z.tissue = {ct_tissue(neighbour_size(hu_below, below_path), level),
+                   ct_tissue(neighbour_size(hu_above, above_path), level)};
+    ct.z.needed = 2;
+  } else if (for_mask) {
+    // Continuity along z: beside CT slice j, a part must continue into j − 1 or j + 1.
+    for (int j : {at.below - 1, at.below + 1}) {
+      if (j < 0 || j >= int(inputs.ct.size())) continue;
+      const std::string& path = inputs.ct[std::size_t(j)].path;
+      ct.z.tissue.push_back(ct_tissue(neighbour_size(read_ct_hu(*config.ct, path), path), level));
+    }
+    ct.z.needed = 1;
   }
   const Similarity c =
       inputs.transforms.ct_to_rgb ? *inputs.transforms.ct_to_rgb : defined_ct_to_rgb(config);

@@ -43,11 +43,13 @@ void require_rgb_slice(const cv::Mat& rgb, const char* what) {
 }
 
 cv::Mat body_parts(const cv::Mat& mask, const PartRule& rule, PartCounts* counts,
-                   const cv::Mat& rgb) {
+                   const cv::Mat& rgb, const cv::Mat& hu) {
   if (!rgb.empty()) {
     require_rgb_slice(rgb, "body_parts");
     if (rgb.size() != mask.size()) throw Error("body_parts: mask and slice differ in size");
   }
+  if (!hu.empty() && (hu.size() != mask.size() || hu.type() != CV_32FC1))
+    throw Error("body_parts: mask and CT slice differ in size (or the CT is not CV_32F)");
   if (counts) *counts = {};
   cv::Mat out = cv::Mat::zeros(mask.size(), CV_8UC1);
   // Only the parts' bounding box is examined.
@@ -78,17 +80,46 @@ cv::Mat body_parts(const cv::Mat& mask, const PartRule& rule, PartCounts* counts
         if (l[x] > 0) colour[std::size_t(l[x])] += cv::Vec3d(p[x][0], p[x][1], p[x][2]);
     }
   }
+  // Elongation per part (the distance transform counts from the pixel centre to the nearest
+  // outside centre: a disc of radius R reads about R + 0.5).
+  auto elongation = [&](int i) {
+    const double r = std::max(0.5, inscribed[std::size_t(i)]);
+    return stats.at<int>(i, cv::CC_STAT_AREA) / (kPi * r * r);
+  };
+  // The median HU of the CT parts that only the soft-tissue exception could keep.
+  std::vector<double> median_hu(std::size_t(n), 1e9);
+  if (!hu.empty() && rule.max_elongation > 0) {
+    std::vector<std::vector<float>> values(static_cast<std::size_t>(n));
+    std::vector<std::uint8_t> wanted(static_cast<std::size_t>(n), 0);
+    bool any = false;
+    for (int i = 1; i < n; ++i) {
+      const double e = elongation(i);
+      if (e > rule.max_elongation && e <= kMaxTissueElongation)
+        wanted[std::size_t(i)] = 1, any = true;
+    }
+    if (any) {
+      const cv::Mat h = hu(box);
+      for (int y = 0; y < m.rows; ++y) {
+        const int* l = labels.ptr<int>(y);
+        const float* v = h.ptr<float>(y);
+        for (int x = 0; x < m.cols; ++x)
+          if (wanted[std::size_t(l[x])]) values[std::size_t(l[x])].push_back(v[x]);
+      }
+      for (int i = 1; i < n; ++i) {
+        auto& v = values[std::size_t(i)];
+        if (v.empty()) continue;
+        std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+        median_hu[std::size_t(i)] = v[v.size() / 2];
+      }
+    }
+  }
   std::vector<std::uint8_t> keep(std::size_t(n), 0);
   int kept = 0;
   for (int i = 1; i < n; ++i) {
     const double area = stats.at<int>(i, cv::CC_STAT_AREA);
     bool body = area >= rule.min_area_px;
-    if (body && rule.max_elongation > 0) {
-      // The distance transform counts from the pixel centre to the nearest outside centre: a
-      // disc of radius R reads about R + 0.5.
-      const double r = std::max(0.5, inscribed[std::size_t(i)]);
-      body = area / (kPi * r * r) <= rule.max_elongation;
-    }
+    if (body && rule.max_elongation > 0)
+      body = elongation(i) <= rule.max_elongation || median_hu[std::size_t(i)] <= kSoftTissueMaxHu;
     if (body && !rgb.empty()) {
       const cv::Vec3d mean = colour[std::size_t(i)] / area;
       body = mean[1] <= mean[0] + kTissueColourSlack && mean[2] <= mean[0] + kTissueColourSlack;
@@ -123,8 +154,66 @@ cv::Mat open_disc(const cv::Mat& mask, int radius) {
   return out;
 }
 
+cv::Mat ct_tissue(const cv::Mat& ct_hu, double hu_threshold) {
+  return fill_holes(ct_hu_float(ct_hu) > hu_threshold);
+}
+
+namespace {
+
+// Continuity along z (outline.h): adds to `body` every part of `raw` that holds no body pixel,
+// is not thin and long, and has at least a quarter of its pixels on tissue in `z.needed` of the
+// neighbours. Returns the number of parts added.
+int add_continuing_parts(const cv::Mat& raw, const cv::Mat& hu, const ZNeighbours& z,
+                         cv::Mat& body) {
+  for (const cv::Mat& t : z.tissue)
+    if (t.size() != raw.size())
+      throw Error(cat("ct_body_mask: a neighbouring CT slice is ", t.cols, "x", t.rows,
+                      ", the slice ", raw.cols, "x", raw.rows));
+  if (z.tissue.empty() || int(z.tissue.size()) < z.needed) return 0;
+  cv::Mat labels, stats, centroids;
+  const int n = cv::connectedComponentsWithStats(raw, labels, stats, centroids, 8, CV_32S);
+  if (n <= 1) return 0;
+  // Per part: holds body, pixels on each neighbour's tissue, largest inscribed radius.
+  std::vector<std::uint8_t> has_body(std::size_t(n), 0);
+  std::vector<std::vector<int>> on(z.tissue.size(), std::vector<int>(std::size_t(n), 0));
+  for (int y = 0; y < raw.rows; ++y) {
+    const int* l = labels.ptr<int>(y);
+    const std::uint8_t* b = body.ptr<std::uint8_t>(y);
+    for (int x = 0; x < raw.cols; ++x) {
+      if (l[x] == 0) continue;
+      if (b[x]) has_body[std::size_t(l[x])] = 1;
+      for (std::size_t t = 0; t < z.tissue.size(); ++t)
+        if (z.tissue[t].ptr<std::uint8_t>(y)[x]) ++on[t][std::size_t(l[x])];
+    }
+  }
+  std::vector<std::uint8_t> add(std::size_t(n), 0);
+  bool any = false;
+  for (int i = 1; i < n; ++i) {
+    if (has_body[std::size_t(i)]) continue;
+    const int area = stats.at<int>(i, cv::CC_STAT_AREA);
+    int continues = 0;
+    for (const auto& o : on)
+      continues += 4 * o[std::size_t(i)] >= area ? 1 : 0;
+    if (continues >= z.needed) add[std::size_t(i)] = 1, any = true;
+  }
+  if (!any) return 0;
+  // Not thin and long (a holder or table continues along z too): the part rule's shape test.
+  cv::Mat candidates = cv::Mat::zeros(raw.size(), CV_8UC1);
+  for (int y = 0; y < raw.rows; ++y) {
+    const int* l = labels.ptr<int>(y);
+    std::uint8_t* c = candidates.ptr<std::uint8_t>(y);
+    for (int x = 0; x < raw.cols; ++x)
+      if (add[std::size_t(l[x])]) c[x] = 255;
+  }
+  PartCounts added;
+  body |= body_parts(candidates, PartRule{}, &added, cv::Mat(), hu);
+  return added.kept;
+}
+
+}  // namespace
+
 cv::Mat ct_body_mask(const cv::Mat& ct_hu, double hu_threshold, double min_part_px,
-                     PartCounts* counts) {
+                     PartCounts* counts, const ZNeighbours* z) {
   cv::Mat hu = ct_hu_float(ct_hu);
   // Holes filled first: a cavity near the body's edge (a sinus, an airway) leaves only a thin
   // band of tissue between it and the outside, which the opening below would cut off with the
@@ -134,9 +223,20 @@ cv::Mat ct_body_mask(const cv::Mat& ct_hu, double hu_threshold, double min_part_
   // (outline.h: the part rule).
   PartRule rule;
   rule.min_area_px = min_part_px;
-  cv::Mat body = body_parts(open_disc(raw, kCtDetachPx), rule, counts);
+  cv::Mat body = body_parts(open_disc(raw, kCtDetachPx), rule, counts, cv::Mat(), hu);
+  // Continuity along z: the parts the opening or the minimum area dropped that continue into the
+  // neighbouring CT slices (none of them touches a kept part: the regrowth below leaves them).
+  auto continuing = [&](cv::Mat& mask) {
+    if (!z) return;
+    const int added = add_continuing_parts(raw, hu, *z, mask);
+    if (counts && added > 0)
+      counts->kept += added, counts->removed = std::max(0, counts->removed - added);
+  };
   const cv::Rect bounds = cv::boundingRect(body);
-  if (bounds.empty()) return body;
+  if (bounds.empty()) {
+    continuing(body);
+    return body;
+  }
   // Grow back what the opening shaved off the parts' own edge, only within its radius + 1, and
   // none of a shaved-off piece that reaches beyond kHolderReachPx (a holder or table touching a
   // part). All of it lies within the parts' bounding box grown by kHolderReachPx; one more pixel
@@ -255,6 +355,7 @@ cv::Mat ct_body_mask(const cv::Mat& ct_hu, double hu_threshold, double min_part_
   }
   cv::Mat out = cv::Mat::zeros(body.size(), CV_8UC1);
   fill_holes(grown).copyTo(out(box));
+  continuing(out);
   return out;
 }
 

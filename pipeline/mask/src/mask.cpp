@@ -174,7 +174,7 @@ cv::Mat draw_mask_overlay(const cv::Mat& rgb, const cv::Mat& mask) {
 }
 
 MaskSlice compute_mask(const cv::Mat& rgb, const cv::Mat* ct_hu, const cv::Matx23d& out_to_ct,
-                       const MaskOptions& options, double pixel_mm2) {
+                       const MaskOptions& options, double pixel_mm2, const ZNeighbours* z) {
   require_rgb_slice(rgb, "compute_mask");
   if (!(pixel_mm2 > 0.0)) throw Error(cat("compute_mask: pixel area ", pixel_mm2, " mm²"));
   const double min_part_px = options.min_part_mm2 / pixel_mm2;  // output pixels
@@ -193,7 +193,7 @@ MaskSlice compute_mask(const cv::Mat& rgb, const cv::Mat* ct_hu, const cv::Matx2
     // CT pixels per output pixel (area): |det out_to_ct|.
     const double ct_per_out =
         std::abs(out_to_ct(0, 0) * out_to_ct(1, 1) - out_to_ct(0, 1) * out_to_ct(1, 0));
-    cv::Mat ct_mask = ct_body_mask(hu, level, min_part_px * ct_per_out, &result.parts);
+    cv::Mat ct_mask = ct_body_mask(hu, level, min_part_px * ct_per_out, &result.parts, z);
     result.mask = cv::Mat::zeros(size, CV_8UC1);
     // Work inside the rectangle the CT body can reach (plus a frame of outside pixels).
     const int margin = options.opening_px + 4;

@@ -59,9 +59,14 @@ std::string MaskStageJob::input_fingerprint(int k) const {
   // a new transforms.json reruns every slice).
   const CtAtZ at = ct_at_colour_slice(config_, int(inputs_.ct.size()), k);
   Fingerprint fp;
-  // v2: colour from the input slice; v3: every body part (issue #30).
-  fp.text("mask-v3").file(inputs_.rgb[std::size_t(k)].path);
+  // v2: colour from the input slice; v3: every body part; v4: continuity along z, elongated
+  // parts of soft tissue.
+  fp.text("mask-v4").file(inputs_.rgb[std::size_t(k)].path);
   if (at.inside()) fp.file(inputs_.ct[std::size_t(at.below)].path);
+  // v4: the part rule's continuity along z reads the CT slices beside an exact one.
+  if (at.inside() && at.exact())
+    for (int j : {at.below - 1, at.below + 1})
+      if (j >= 0 && j < int(inputs_.ct.size())) fp.text("z").file(inputs_.ct[std::size_t(j)].path);
   if (at.inside() && !at.exact())
     fp.text("above").number(at.w_above).file(inputs_.ct[std::size_t(at.above)].path);
   return fp.str();
@@ -104,7 +109,7 @@ cv::Mat MaskStageJob::compute(int k, const cv::Mat& rgb, const CtSlice& ct, cv::
   MaskOptions mask_options = config_.mask;
   if (inputs_.transforms.slices[std::size_t(k)].black) mask_options.refine_gel = false;
   MaskSlice m = compute_mask(rgb, has_ct ? &ct_hu : nullptr, ct.out_to_ct, mask_options,
-                             config_.spacing_mm[0] * config_.spacing_mm[1]);
+                             config_.spacing_mm[0] * config_.spacing_mm[1], &ct.z);
   compute_ns_ +=
       std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now() - t0)
           .count();

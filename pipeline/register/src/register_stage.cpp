@@ -92,8 +92,8 @@ std::string pair_fingerprint(const Config& config, const std::vector<SliceFile>&
                              const std::vector<SliceFile>& ct_files, bool anchored, int k) {
   Fingerprint fp;
   // The record's layout and method version (v4: σ from the body size; v5: every body part in the
-  // anchor, its part counts recorded).
-  fp.text("pairs-v5");
+  // anchor, its part counts recorded; v6: the anchor's CT body keeps elongated soft tissue).
+  fp.text("pairs-v6");
   fp.text(config_section_hash(config, {"register", "spacing_mm"}));
   for (int j = std::max(0, k - 4); j <= k; ++j)
     fp.file(files[std::size_t(j)].path);

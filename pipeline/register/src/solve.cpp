@@ -570,6 +570,8 @@ class CtStackSolver {
   }
   double pair_sigma(int i) const;
   double pair_lever_at(int i) const;
+  double edge_share(int i) const;
+  double edge_lever_share(int i) const;
   bool tiny_body(int i) const;
   bool confident_anchor(int i) const;
   bool curvature_ok(int i) const {  // terms around node i use edges into i and i+1
@@ -684,6 +686,21 @@ double CtStackSolver::pair_lever_at(int i) const {
   return std::min({radius_[std::size_t(i - 1)], radius_[std::size_t(i)],
                    radius_[std::size_t(i + 1)], r0_}) *
          kPi / 180.0;
+}
+
+// The first-order term of the edge into node i, as the curvature terms: (σ_p / σ)² with σ grown as
+// (R0 / r)² for the smaller body r of the two slices, and the rotation's lever (r, not R0) as a
+// share of R0's, squared. A small body (the top of a head, a foot) says little about rotation:
+// its pair estimates move with the anatomy by degrees while its anchor is right.
+double CtStackSolver::edge_share(int i) const {
+  const double r = std::min(radius_[std::size_t(i - 1)], radius_[std::size_t(i)]);
+  const double grow = std::max(1.0, (r0_ / r) * (r0_ / r));
+  return 1.0 / (grow * grow);
+}
+
+double CtStackSolver::edge_lever_share(int i) const {
+  const double r = std::min({radius_[std::size_t(i - 1)], radius_[std::size_t(i)], r0_});
+  return (r / r0_) * (r / r0_);
 }
 
 // A pair edge between slices of which one shows (almost) no body measures gel against gel:
@@ -807,7 +824,8 @@ std::vector<double> CtStackSolver::solve_rotations() const {
               anchor_[std::size_t(i)]->w_rot * ra_rot_[std::size_t(i)] / (f_ar_ * f_ar_));
     if (i >= 1 && primary_[std::size_t(i)]) {
       const PairEdge& e = *primary_[std::size_t(i)];
-      rot.row({{i, 1.0}, {i - 1, -1.0}}, e.relative.rotation_deg, w1_rot_ * e.weight);
+      rot.row({{i, 1.0}, {i - 1, -1.0}}, e.relative.rotation_deg,
+              w1_rot_ * e.weight * edge_share(i) * edge_lever_share(i));
     }
     if (i >= 1 && !cut_[std::size_t(i)]) rot.row({{i, 1.0}, {i - 1, -1.0}}, 0.0, ww_rot / gap(i));
     if (smooth_ok(i))
@@ -860,7 +878,7 @@ std::vector<double> CtStackSolver::solve_shifts(const std::vector<double>& theta
       // d_i − R(θ_i − θ_{i−1}) d_{i−1} = e
       const PairEdge& e = *primary_[std::size_t(i)];
       const cv::Matx22d r = rmat(i, i - 1);
-      const double w = w1_shift_ * e.weight;
+      const double w = w1_shift_ * e.weight * edge_share(i);
       sh.row({{2 * i, 1.0}, {2 * (i - 1), -r(0, 0)}, {2 * (i - 1) + 1, -r(0, 1)}}, e.relative.dx_px,
              w);
       sh.row({{2 * i + 1, 1.0}, {2 * (i - 1), -r(1, 0)}, {2 * (i - 1) + 1, -r(1, 1)}},

@@ -11,6 +11,7 @@
 
 #include "vispack/pipeline/core/config.h"
 #include "vispack/pipeline/core/work_layout.h"
+#include "vispack/pipeline/imaging/outline.h"
 
 namespace vispack::pipeline {
 
@@ -45,6 +46,9 @@ struct CtSlice {
   // one has none, or they overlap by less than half the smaller): a body's tip, which the blend
   // loses (a third of the way for soft tissue). The mask stage takes the colour alone there.
   bool body_ends = false;
+  // With `for_mask`: the neighbouring CT slices' tissue for the part rule's continuity along z
+  // (outline.h ZNeighbours): beside CT slice j, j − 1 and j + 1; between two, those two.
+  ZNeighbours z;
 };
 CtSlice read_ct_slice(const Config& config, const StackInputs& inputs, int index,
                       bool for_mask = false);

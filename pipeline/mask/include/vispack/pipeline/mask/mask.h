@@ -85,7 +85,12 @@ struct MaskSlice {
   double coverage = 0.0;  // fraction of mask pixels
   PartCounts parts;       // body parts kept and removed (CT parts where the CT decides)
 };
+// `z` (optional, with CT): the neighbouring CT slices along z, for the part rule's continuity
+// (outline.h ZNeighbours): a part smaller than mask.min_part_mm2, or one the opening cut, that
+// continues into them is body. Without refinement the output grid's minimum area still applies
+// after the opening (docs/ARCHITECTURE.md "The body mask").
 MaskSlice compute_mask(const cv::Mat& rgb, const cv::Mat* ct_hu, const cv::Matx23d& out_to_ct,
-                       const MaskOptions& options, double pixel_mm2);
+                       const MaskOptions& options, double pixel_mm2,
+                       const ZNeighbours* z = nullptr);
 
 }  // namespace vispack::pipeline

@@ -25,6 +25,12 @@
 // b·n as in integration); the weak first-order terms (w_1 = 0.04 w_a: crossover length 0.2
 // slices) leak at most ≈ 0.2·b. Nothing in the solve integrates b over the stack, so the error
 // does not grow with the stack's length. docs/ARCHITECTURE.md "Registration" has the argument.
+// Both pair terms weigh what the pair can know: σ_p grows as (R0 / r)² for a body of radius r
+// below R0 (a quarter of the mean edge; r the smaller body the pair joins), and the rotation's
+// lever is r, not R0. Where the body is small (the top of a head, the feet) a pair estimate
+// moves with the anatomy by a degree while the anchor stays within a tenth: the anchors decide
+// there, not the pairs (the first-order terms took R0's weight for every body until the male
+// phantom's head cap showed it: docs/BENCHMARKS.md "Every body part").
 // Before the solve, pair edges are dropped where they contradict both (confident) anchors they
 // join, where either slice shows almost no body, or where they claim a jump two confident
 // anchors cannot confirm. After each solve, every class of measurement gets a noise scale from
