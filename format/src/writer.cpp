@@ -369,6 +369,88 @@ std::vector<EncodedBrick> encode_level0_slab(const WriterOptions& options, std::
   return encode_level0_slab(options, bz, channel_slabs, sink, labels, {});
 }
 
+namespace {
+
+// The stored bytes of each channel of a level-0 slab of `nzv` slices: the caller's slab itself,
+// or (uint8 labels handed over as uint16, SlabLabels::kUint16) a narrowed copy. No other copy: a
+// level-0 slab of 2048x1216 slices is ~1 GB. `zeros`: the caller's zero-page buffer of each
+// channel passed on (none for a narrowed copy).
+struct SlabChannels {
+  std::vector<std::vector<std::uint8_t>> narrowed;
+  std::vector<const std::uint8_t*> slabs;
+  std::vector<const ZeroPagedBuffer*> zeros;
+};
+
+SlabChannels slab_channels(const std::vector<ChannelSpec>& stored, std::int64_t bz, std::int64_t e,
+                           int nzv, std::int64_t dx, std::size_t plane,
+                           const std::vector<const void*>& channel_slabs, SlabLabels labels,
+                           const std::vector<const ZeroPagedBuffer*>& zero_pages) {
+  SlabChannels out;
+  out.narrowed.resize(stored.size());
+  out.slabs.resize(stored.size());
+  out.zeros.assign(stored.size(), nullptr);
+  for (std::size_t c = 0; c < stored.size(); ++c) {
+    if (!channel_slabs[c]) {
+      throw std::invalid_argument(
+          cat("encode_level0_slab: null pointer for channel \"", stored[c].name, "\""));
+    }
+    if (stored[c].type == ChannelType::kUint8 && labels == SlabLabels::kUint16) {
+      out.narrowed[c].resize(plane * std::size_t(nzv));
+      const auto* src = static_cast<const std::uint16_t*>(channel_slabs[c]);
+      for (int z = 0; z < nzv; ++z)
+        narrow_labels(src + std::size_t(z) * plane, plane, dx,
+                      out.narrowed[c].data() + std::size_t(z) * plane, "encode_level0_slab",
+                      bz * e + z, stored[c].name);
+      out.slabs[c] = out.narrowed[c].data();
+    } else {
+      out.slabs[c] = static_cast<const std::uint8_t*>(channel_slabs[c]);
+      if (!zero_pages.empty()) out.zeros[c] = zero_pages[c];
+    }
+  }
+  return out;
+}
+
+// The slab's level-1 slices, reduced as Writer::Impl::push reduces them (pairs of slices; the
+// volume's last slice alone when dims[2] is odd), one at a time into one slice's buffer, handed
+// to `level1`. Slabs start at even slices (even edge).
+void reduce_slab_to_level1(const WriterOptions& options, const std::vector<ChannelSpec>& stored,
+                           const SlabChannels& channels, int nzv, std::int64_t dx, std::int64_t dy,
+                           const Level1SliceSink& level1) {
+  const std::size_t plane = std::size_t(dx) * std::size_t(dy);
+  const std::int64_t hx = ceil_div(dx, 2), hy = ceil_div(dy, 2);
+  const int n1 = int(ceil_div(nzv, 2));
+  std::vector<std::uint8_t> slice;
+  for (std::size_t c = 0; c < stored.size(); ++c) {
+    const std::size_t bytes = channel_type_bytes(stored[c].type);
+    const std::size_t slice_bytes = std::size_t(hx) * std::size_t(hy) * bytes;
+    if (slice.size() < slice_bytes) slice.resize(slice_bytes);
+    for (int k = 0; k < n1; ++k) {
+      downsample_slice(stored[c].type, channels.slabs[c] + std::size_t(2 * k) * plane * bytes,
+                       std::min(2, nzv - 2 * k), dx, dy, slice.data(),
+                       resolve_threads(options.threads), channels.zeros[c]);
+      level1(c, k, slice.data(), slice_bytes);
+    }
+  }
+}
+
+// The encoded bricks as the caller receives them (their payloads and label sets moved out).
+std::vector<EncodedBrick> to_encoded_bricks(std::vector<BrickResult>& results) {
+  std::vector<EncodedBrick> out(results.size());
+  for (std::size_t i = 0; i < out.size(); ++i) {
+    const IndexEntry& en = results[i].entry;
+    EncodedBrick& b = out[i];
+    b.codec = Codec(en.codec);
+    std::memcpy(b.min.data(), en.min, 8);
+    std::memcpy(b.max.data(), en.max, 8);
+    b.checksum = en.checksum;
+    b.payload = std::move(results[i].payload);
+    b.labels = std::move(results[i].labels);
+  }
+  return out;
+}
+
+}  // namespace
+
 std::vector<EncodedBrick> encode_level0_slab(
     const WriterOptions& options, std::int64_t bz, const std::vector<const void*>& channel_slabs,
     const Level1SliceSink& level1, SlabLabels labels,
@@ -391,30 +473,8 @@ std::vector<EncodedBrick> encode_level0_slab(
   const int nzv = int(std::min(e, options.dims[2] - bz * e));
   const std::int64_t dx = options.dims[0], dy = options.dims[1];
   const std::size_t plane = std::size_t(dx) * std::size_t(dy);
-  // The stored bytes of each channel: the caller's slab itself, or (uint8 labels handed over as
-  // uint16, SlabLabels::kUint16) a narrowed copy. No other copy: a level-0 slab of 2048x1216 slices
-  // is ~1 GB.
-  std::vector<std::vector<std::uint8_t>> narrowed(stored.size());
-  std::vector<const std::uint8_t*> slabs(stored.size());
-  std::vector<const ZeroPagedBuffer*> zeros(stored.size(), nullptr);
-  for (std::size_t c = 0; c < stored.size(); ++c) {
-    if (!channel_slabs[c]) {
-      throw std::invalid_argument(
-          cat("encode_level0_slab: null pointer for channel \"", stored[c].name, "\""));
-    }
-    if (stored[c].type == ChannelType::kUint8 && labels == SlabLabels::kUint16) {
-      narrowed[c].resize(plane * std::size_t(nzv));
-      const auto* src = static_cast<const std::uint16_t*>(channel_slabs[c]);
-      for (int z = 0; z < nzv; ++z)
-        narrow_labels(src + std::size_t(z) * plane, plane, dx,
-                      narrowed[c].data() + std::size_t(z) * plane, "encode_level0_slab", bz * e + z,
-                      stored[c].name);
-      slabs[c] = narrowed[c].data();
-    } else {
-      slabs[c] = static_cast<const std::uint8_t*>(channel_slabs[c]);
-      if (!zero_pages.empty()) zeros[c] = zero_pages[c];
-    }
-  }
+  const SlabChannels channels =
+      slab_channels(stored, bz, e, nzv, dx, plane, channel_slabs, labels, zero_pages);
   const std::int64_t gx = ceil_div(dx, e), gy = ceil_div(dy, e);
   const std::int64_t items = gx * gy * std::int64_t(stored.size());
   std::vector<BrickResult> results(static_cast<std::size_t>(items));
@@ -425,40 +485,13 @@ std::vector<EncodedBrick> encode_level0_slab(
     for (std::int64_t i = t; i < items; i += threads) {
       const std::size_t c = std::size_t(i / (gx * gy));
       encode_brick(options, stored, "encode_level0_slab", source,
-                   ChannelBlock{slabs[c], 0, dy, zeros[c]}, i, scratch, results[std::size_t(i)]);
+                   ChannelBlock{channels.slabs[c], 0, dy, channels.zeros[c]}, i, scratch,
+                   results[std::size_t(i)]);
     }
   });
-  if (level1 && format::level_count_for(options.dims, int(e)) > 1) {
-    // The slab's level-1 slices, reduced as Writer::Impl::push reduces them (pairs of slices; the
-    // volume's last slice alone when dims[2] is odd), one at a time into one slice's buffer.
-    // Slabs start at even slices (even edge).
-    const std::int64_t hx = ceil_div(dx, 2), hy = ceil_div(dy, 2);
-    const int n1 = int(ceil_div(nzv, 2));
-    std::vector<std::uint8_t> slice;
-    for (std::size_t c = 0; c < stored.size(); ++c) {
-      const std::size_t bytes = channel_type_bytes(stored[c].type);
-      const std::size_t slice_bytes = std::size_t(hx) * std::size_t(hy) * bytes;
-      if (slice.size() < slice_bytes) slice.resize(slice_bytes);
-      for (int k = 0; k < n1; ++k) {
-        downsample_slice(stored[c].type, slabs[c] + std::size_t(2 * k) * plane * bytes,
-                         std::min(2, nzv - 2 * k), dx, dy, slice.data(),
-                         resolve_threads(options.threads), zeros[c]);
-        level1(c, k, slice.data(), slice_bytes);
-      }
-    }
-  }
-  std::vector<EncodedBrick> out(static_cast<std::size_t>(items));
-  for (std::size_t i = 0; i < out.size(); ++i) {
-    const IndexEntry& en = results[i].entry;
-    EncodedBrick& b = out[i];
-    b.codec = Codec(en.codec);
-    std::memcpy(b.min.data(), en.min, 8);
-    std::memcpy(b.max.data(), en.max, 8);
-    b.checksum = en.checksum;
-    b.payload = std::move(results[i].payload);
-    b.labels = std::move(results[i].labels);
-  }
-  return out;
+  if (level1 && format::level_count_for(options.dims, int(e)) > 1)
+    reduce_slab_to_level1(options, stored, channels, nzv, dx, dy, level1);
+  return to_encoded_bricks(results);
 }
 
 void decode_encoded_brick(const EncodedBrick& brick, ChannelType stored, int brick_edge,
