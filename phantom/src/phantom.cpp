@@ -262,7 +262,8 @@ PhantomPreset phantom_preset(const std::string& name) {
     p.width = 2048, p.height = 1216, p.slices = 16, p.pixel_mm = 0.33, p.ct_size = 1120,
     p.ct_pixel_mm = 0.66, p.defects = false, p.fiducials = false, p.varying_anatomy = true;
   } else if (name == "male") {
-    // A whole body with arms, legs and toes at the real slice size (issue #30).
+    // A whole body with arms, legs and toes at the real slice size (docs/ARCHITECTURE.md, 'The body
+    // mask: every part is body').
     p.width = 2048, p.height = 1216, p.slices = 200, p.pixel_mm = 0.33, p.ct_size = 512,
     p.ct_pixel_mm = 1.4, p.defects = false, p.fiducials = false, p.varying_anatomy = true,
     p.limbs = true;

@@ -1,10 +1,10 @@
-// The packed file against the phantom's truth (issue 4: "the packed file's channels agree with
-// truth/ within stated tolerances"). The whole pipeline (register, mask, labels, pack) runs on a
-// `small` phantom cut to 24 slices (256x192, the small preset's pixel and CT sizes, the block
+// The packed file against the phantom's truth (docs/GOALS.md §6: "the packed file's channels agree
+// with truth/ within stated tolerances"). The whole pipeline (register, mask, labels, pack) runs on
+// a `small` phantom cut to 24 slices (256x192, the small preset's pixel and CT sizes, the block
 // jump, one black and one duplicated slice), and every channel of the packed file is compared with
 // truth/ voxel by voxel. The tolerances come from the pipeline's goals, not from what today's
 // code measures: the mask goal is IoU >= 0.99 and the registration goal a drift error <= 0.1 px
-// (docs/GOALS.md §6, issue 4). Where the code misses a goal the test fails and says by how
+// (docs/GOALS.md §6). Where the code misses a goal the test fails and says by how
 // much.
 #include <gtest/gtest.h>
 

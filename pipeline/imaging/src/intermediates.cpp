@@ -138,8 +138,9 @@ Intermediates read_intermediates(const Config& config, const StackInputs& inputs
 
 void clear_outside_body(const Config& config, Intermediates& in) {
   const cv::Size size = in.mask.size();
-  // Issue 12: store only what a scene needs. Gel outside the body varies from voxel to voxel
-  // (texture, noise), so not one brick of it would be uniform; cleared, it costs nothing.
+  // Store only what a scene needs (docs/ARCHITECTURE.md, 'The packed file'). Gel outside the body
+  // varies from voxel to voxel (texture, noise), so not one brick of it would be uniform; cleared,
+  // it costs nothing.
   const bool clear_rgb = !config.pack.keep_colour_outside_body;
   const bool clear_ct = config.ct && !config.pack.keep_ct_outside_body;
   if (clear_rgb || clear_ct) {

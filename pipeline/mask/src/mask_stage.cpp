@@ -59,7 +59,8 @@ std::string MaskStageJob::input_fingerprint(int k) const {
   // a new transforms.json reruns every slice).
   const CtAtZ at = ct_at_colour_slice(config_, int(inputs_.ct.size()), k);
   Fingerprint fp;
-  // v2: colour from the input slice; v3: every body part (issue #30).
+  // v2: colour from the input slice; v3: every body part (docs/ARCHITECTURE.md, 'The body mask:
+  // every part is body').
   fp.text("mask-v3").file(inputs_.rgb[std::size_t(k)].path);
   if (at.inside()) fp.file(inputs_.ct[std::size_t(at.below)].path);
   if (at.inside() && !at.exact())
@@ -168,7 +169,7 @@ StageResult MaskStageJob::finish() {
     run_.set_quality("mean_gel_colour", {gel_sum_[0] / gel_count_, gel_sum_[1] / gel_count_,
                                          gel_sum_[2] / gel_count_});
   if (counted > 0) run_.set_report("mask_ms_per_slice", compute_ns_.load() / 1e6 / counted);
-  // Issue 31: a stack with no body at all is a config mistake far more often than a volume of gel
+  // A stack with no body at all is a config mistake far more often than a volume of gel
   // (printed even with --quiet: it changes what the output means).
   nlohmann::json warnings = nlohmann::json::array();
   if (counted > 0 && sum == 0.0)

@@ -411,7 +411,7 @@ AnchorEstimate anchor_from_json(const nlohmann::json& j, const std::string& what
     a.radius_px = j.at("radius_px").get<double>();
     a.lever_px = j.value("lever_px", a.radius_px);
     a.sigma_px = j.at("sigma_px").get<double>();
-    a.parts_ct = j.value("parts_ct", 0);  // records before issue #30 have none
+    a.parts_ct = j.value("parts_ct", 0);  // older records (before the part counts) have none
     a.parts_colour = j.value("parts_colour", 0);
     if (!(a.confidence >= 0.0 && a.confidence <= 1.0) || !(a.sigma_px >= 0.0) ||
         !std::isfinite(a.transform.dx_px) || !std::isfinite(a.transform.dy_px) ||

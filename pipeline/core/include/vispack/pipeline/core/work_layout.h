@@ -59,7 +59,8 @@ std::vector<std::string> z_extent_warnings(const Config& config, int colour_coun
 StackTransforms read_stack_transforms(const Config& config, int slice_count);
 
 // What the later stages need to rebuild a slice's registered colour and resampled CT from the
-// inputs (issue 12: those full-size images are not written by default, config "work").
+// inputs (docs/ARCHITECTURE.md, 'Work folder layout': those full-size images are not written by
+// default, config "work").
 struct StackInputs {
   std::vector<SliceFile> rgb;  // stack_slices(config): index k = output slice k
   std::vector<SliceFile> ct;   // list_slices(*config.ct), empty without CT

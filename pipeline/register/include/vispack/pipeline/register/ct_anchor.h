@@ -31,7 +31,8 @@
 //      full working resolution, from step 3's
 //      result; kept when it converges within a few pixels and 1° of it. The outline is what both
 //      modalities show alike; the intensity map of step 3 is not exact inside the body, which
-//      biased a small body's rotation by tenths of a degree (docs/BENCHMARKS.md, issue #11).
+//      biased a small body's rotation by tenths of a degree (docs/BENCHMARKS.md, 'Registration
+//      anchored on the CT').
 //   5. lever_px: how well the template pins rotation (below); correlation = the final ECC
 //      coefficient; confidence = clamp((correlation − 0.4) / 0.4)
 //      × clamp(body_fraction / 0.03): slices whose body is a small patch (the ends of the
