@@ -36,6 +36,7 @@
 #include "vispack/common/error.h"
 
 #include "vispack/common/parallel.h"
+#include "vispack/pipeline/imaging/transforms.h"
 #include "vispack/pipeline/register/register.h"
 
 namespace vp = vispack::pipeline;

@@ -21,9 +21,9 @@
 #include "vispack/phantom/score.h"
 #include "vispack/pipeline/core/config.h"
 #include "vispack/pipeline/core/stage_run.h"
-#include "vispack/pipeline/core/transforms.h"
 #include "vispack/pipeline/core/work_layout.h"
 #include "vispack/pipeline/imaging/slice_io.h"
+#include "vispack/pipeline/imaging/transforms.h"
 #include "vispack/pipeline/register/register.h"
 #include "vispack/pipeline/register/register_stage.h"
 

@@ -12,6 +12,7 @@
 #include "test_support.h"
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
+#include "vispack/pipeline/imaging/transforms.h"
 #include "vispack/pipeline/register/register.h"
 
 namespace vp = vispack::pipeline;

@@ -27,6 +27,7 @@
 #include "vispack/pipeline/core/stage_run.h"
 #include "vispack/pipeline/core/work_layout.h"
 #include "vispack/pipeline/imaging/slice_io.h"
+#include "vispack/pipeline/imaging/transforms.h"
 #include "vispack/pipeline/run/run.h"
 
 using namespace vispack;

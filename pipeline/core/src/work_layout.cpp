@@ -4,8 +4,6 @@
 #include <filesystem>
 #include <set>
 
-#include <opencv2/imgproc.hpp>
-
 #include "vispack/common/error.h"
 #include "vispack/pipeline/core/slice_z.h"
 

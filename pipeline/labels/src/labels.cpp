@@ -13,6 +13,7 @@
 #include "vispack/common/error.h"
 #include "vispack/common/parallel.h"
 #include "vispack/pipeline/imaging/slice_io.h"
+#include "vispack/pipeline/imaging/transforms.h"
 
 namespace vispack::pipeline {
 

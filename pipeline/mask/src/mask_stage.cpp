@@ -13,11 +13,11 @@
 #include "vispack/common/error.h"
 #include "vispack/common/parallel.h"
 #include "vispack/pipeline/core/slice_z.h"
-#include "vispack/pipeline/core/transforms.h"
 #include "vispack/pipeline/core/work_layout.h"
 #include "vispack/pipeline/imaging/intermediates.h"
 #include "vispack/pipeline/imaging/opencv_threads.h"
 #include "vispack/pipeline/imaging/slice_io.h"
+#include "vispack/pipeline/imaging/transforms.h"
 #include "vispack/pipeline/mask/mask.h"
 #include "vispack/pipeline/mask/mask_stage.h"
 

@@ -11,6 +11,7 @@
 #include "vispack/common/error.h"
 #include "vispack/common/math_constants.h"
 #include "vispack/pipeline/imaging/outline.h"
+#include "vispack/pipeline/imaging/transforms.h"
 #include "vispack/pipeline/register/ecc.h"
 #include "vispack/pipeline/register/rotation_search.h"
 

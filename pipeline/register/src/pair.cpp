@@ -12,6 +12,7 @@
 #include "vispack/common/hash.h"
 #include "vispack/common/math_constants.h"
 #include "vispack/common/parallel.h"
+#include "vispack/pipeline/imaging/transforms.h"
 #include "vispack/pipeline/register/ecc.h"
 #include "vispack/pipeline/register/rotation_search.h"
 

@@ -10,6 +10,7 @@
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
 #include "vispack/common/math_constants.h"
+#include "vispack/pipeline/imaging/transforms.h"
 
 namespace vispack::pipeline {
 namespace {

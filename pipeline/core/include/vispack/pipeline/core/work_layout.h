@@ -7,12 +7,10 @@
 #include <string>
 #include <vector>
 
-#include <opencv2/core.hpp>
-
 #include "vispack/pipeline/core/config.h"
 #include "vispack/pipeline/core/fingerprint.h"
 #include "vispack/pipeline/core/slice_list.h"
-#include "vispack/pipeline/core/transforms.h"
+#include "vispack/pipeline/core/transform_types.h"
 
 namespace vispack::pipeline {
 
@@ -65,7 +63,6 @@ struct StackInputs {
   std::vector<SliceFile> rgb;  // stack_slices(config): index k = output slice k
   std::vector<SliceFile> ct;   // list_slices(*config.ct), empty without CT
   StackTransforms transforms;  // <work>/register/transforms.json, one per colour slice
-  cv::Size size() const { return {transforms.width, transforms.height}; }
 };
 // Lists the slice folders and reads transforms.json (read_stack_transforms: same errors).
 StackInputs read_stack_inputs(const Config& config);

@@ -56,8 +56,8 @@
 #include <opencv2/core.hpp>
 
 #include "vispack/pipeline/core/config.h"
-#include "vispack/pipeline/core/transforms.h"
 #include "vispack/pipeline/imaging/outline.h"
+#include "vispack/pipeline/imaging/transforms.h"
 
 namespace vispack::pipeline {
 

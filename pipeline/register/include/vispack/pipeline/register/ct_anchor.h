@@ -1,6 +1,6 @@
 // The CT anchor: each colour slice aligned to its own CT slice, an absolute (drift-free)
-// measurement of its transform T_k (core/transforms.h: output point q appears in observed slice k
-// at p = c + R(θ_k)(q − c) + d_k).
+// measurement of its transform T_k (imaging/transforms.h: output point q appears in observed slice
+// k at p = c + R(θ_k)(q − c) + d_k).
 //
 // The output grid is DEFINED by the CT (docs/ARCHITECTURE.md "The output frame"), never
 // estimated: defined_ct_to_rgb(config). The anchor therefore estimates only T_k.
@@ -56,7 +56,7 @@
 #include <opencv2/core.hpp>
 
 #include "vispack/pipeline/core/config.h"
-#include "vispack/pipeline/core/transforms.h"
+#include "vispack/pipeline/imaging/transforms.h"
 #include "vispack/pipeline/register/frame.h"
 
 namespace vispack::pipeline {
