@@ -506,6 +506,49 @@ std::uint16_t torso_layers(const SliceParams& s, const EvalPoint& p, Accum& t) {
   return label;
 }
 
+// Outside the body at `p` (`outline`: the signed distance to the body's outline): gel (RGB) with
+// the fiducial tubes and tissue showing through near the edge; air (CT) with the holder or, for
+// Anatomy::limbs, the table at `table_top`. `half`: pixels per normalised unit.
+Accum outside_layer(const EvalPoint& p, double outline, const Anatomy& anatomy, double half,
+                    double table_top) {
+  const double Xf = p.Xf, Yf = p.Yf, w = p.w;
+  const float n = p.n;
+  const bool want_rgb = p.want_rgb, want_ct = p.want_ct;
+  Accum acc{{0, 0, 0}, -1000.f};
+  if (want_rgb) {
+    const Tissue& gel = kTissues[0];
+    const float k = 1.f + gel.texture * n;
+    for (int i = 0; i < 3; ++i)
+      acc.rgb[i] = gel.rgb[i] * k;
+    if (outline > 0) {
+      const float through = 0.35f * static_cast<float>(std::exp(-outline / 0.04));
+      for (int i = 0; i < 3; ++i)
+        acc.rgb[i] += through * (0.8f * kTissues[kSkin].rgb[i] - acc.rgb[i]);
+    }
+    const double tube1 = ellipse_sdf(Xf, Yf, -1.08, -0.70, 0.08, 0.08, w);
+    const double tube2 = ellipse_sdf(Xf, Yf, 1.08, 0.66, 0.08, 0.08, w);
+    const float c = std::max(cover(tube1, w), cover(tube2, w));
+    if (c > 0 && anatomy.fiducials) {
+      Tissue tube{{kTube[0], kTube[1], kTube[2]}, 0.04f, -1000, 0};
+      acc.mix(tube, c, n, 0.f, true, false);
+    }
+  }
+  if (want_ct && anatomy.limbs) {
+    // The table: a bar table_px thick under the body, across the whole field of view.
+    const double top = table_top, thick = anatomy.table_px / half;
+    const double table = std::max(top - Yf, Yf - (top + thick));
+    acc.hu = -1000.f + cover(table, w) * (kHolderHu + 1000.f);
+  } else if (want_ct) {
+    const double ga = Model::body_max_a(anatomy) + 0.10, gb = Model::body_max_b(anatomy) + 0.10;
+    const double inner = ellipse_sdf(Xf, Yf, 0, 0, ga, gb, 1e9);
+    const double outer = ellipse_sdf(Xf, Yf, 0, 0, ga + 0.08, gb + 0.08, 1e9);
+    const double holder = std::max({-inner, outer, 0.15 - Yf});
+    acc.hu = -1000.f + cover(holder, w) * (kHolderHu + 1000.f);
+  }
+
+  return acc;
+}
+
 }  // namespace
 
 void Model::eval(const SliceParams& s, double x, double y, double edge_px, bool want_rgb,
@@ -548,39 +591,7 @@ void Model::eval(const SliceParams& s, double x, double y, double edge_px, bool 
   const double outline = std::min(eff, limb);
   out.body = outline < 0;
 
-  // Outside: gel (RGB) with the fiducial tubes and tissue showing through near the edge;
-  // air (CT) with the holder / table.
-  Accum acc{{0, 0, 0}, -1000.f};
-  if (want_rgb) {
-    const Tissue& gel = kTissues[0];
-    const float k = 1.f + gel.texture * n;
-    for (int i = 0; i < 3; ++i)
-      acc.rgb[i] = gel.rgb[i] * k;
-    if (outline > 0) {
-      const float through = 0.35f * static_cast<float>(std::exp(-outline / 0.04));
-      for (int i = 0; i < 3; ++i)
-        acc.rgb[i] += through * (0.8f * kTissues[kSkin].rgb[i] - acc.rgb[i]);
-    }
-    const double tube1 = ellipse_sdf(Xf, Yf, -1.08, -0.70, 0.08, 0.08, w);
-    const double tube2 = ellipse_sdf(Xf, Yf, 1.08, 0.66, 0.08, 0.08, w);
-    const float c = std::max(cover(tube1, w), cover(tube2, w));
-    if (c > 0 && anatomy_.fiducials) {
-      Tissue tube{{kTube[0], kTube[1], kTube[2]}, 0.04f, -1000, 0};
-      acc.mix(tube, c, n, 0.f, true, false);
-    }
-  }
-  if (want_ct && anatomy_.limbs) {
-    // The table: a bar table_px thick under the body, across the whole field of view.
-    const double top = s.table_top, thick = anatomy_.table_px / half_;
-    const double table = std::max(top - Yf, Yf - (top + thick));
-    acc.hu = -1000.f + cover(table, w) * (kHolderHu + 1000.f);
-  } else if (want_ct) {
-    const double ga = body_max_a(anatomy_) + 0.10, gb = body_max_b(anatomy_) + 0.10;
-    const double inner = ellipse_sdf(Xf, Yf, 0, 0, ga, gb, 1e9);
-    const double outer = ellipse_sdf(Xf, Yf, 0, 0, ga + 0.08, gb + 0.08, 1e9);
-    const double holder = std::max({-inner, outer, 0.15 - Yf});
-    acc.hu = -1000.f + cover(holder, w) * (kHolderHu + 1000.f);
-  }
+  Accum acc = outside_layer(point, outline, anatomy_, half_, s.table_top);
 
   std::uint16_t label = 0;
   if (nearest >= 0 && limb < w && limb < eff) {
