@@ -242,7 +242,7 @@ TEST(PackTruth, TrueTransformsChannelsAgreeWithTruth) {
   ASSERT_EQ(int(stack.size()), kSlices);
   for (int k = 0; k < kSlices; ++k) {
     cv::Mat observed = read_slice(stack[std::size_t(k)].path, config.rgb.raw), registered;
-    cv::warpAffine(observed, registered, cv::Mat(rigid_matrix(t.slices[k].rigid, t.centre())),
+    cv::warpAffine(observed, registered, cv::Mat(rigid_matrix(t.slices[k].rigid, grid_centre(t))),
                    observed.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_REPLICATE);
     write_image(registered_rgb_path(config, k), registered);
   }
