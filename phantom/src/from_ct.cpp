@@ -6,12 +6,14 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <memory>
 #include <numeric>
 
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "phantom_folder.h"
 #include "phantom_model.h"
 #include "truth_json.h"
 #include "vispack/common/atomic_file.h"
@@ -28,10 +30,16 @@ namespace vispack::phantom {
 namespace {
 
 namespace fs = std::filesystem;
+using detail::file_digits;
 using detail::GaussianTable;
 using detail::mix64;
 using detail::NoiseLayer;
+using detail::PaletteEntry;
+using detail::PhantomFolder;
 using detail::Random;
+using detail::to_u8;
+using detail::TruthSlice;
+using detail::TruthTransforms;
 using ojson = nlohmann::ordered_json;
 
 constexpr double kNoiseSigma = 3.0;   // colour sensor noise, 8-bit levels
@@ -129,16 +137,6 @@ CtVolume read_config_ct(const std::string& config_path) {
 }
 
 // ---- the model ----
-
-std::uint8_t to_u8(double v) {
-  return static_cast<std::uint8_t>(std::clamp(std::lround(v), 0L, 255L));
-}
-
-std::string numbered(const std::string& stem, int number, int digits, const std::string& ext) {
-  char buffer[32];
-  std::snprintf(buffer, sizeof buffer, "%0*d", digits, number);
-  return stem + "_" + buffer + ext;
-}
 
 double smoothstep(double e0, double e1, double x) {
   const double t = std::clamp((x - e0) / (e1 - e0), 0.0, 1.0);
@@ -250,10 +248,20 @@ class CtModel {
     }
     out.label = label;
     if (!want_rgb) return;
+    double rgb[3];
+    colour(s, qx, qy, body, label, h, depth, rgb);
+    for (int i = 0; i < 3; ++i)
+      out.rgb[i] = float(rgb[i]);
+  }
+
+  // The colour at q of a point of `label` (body or gel) with HU `h` and depth `depth` (px
+  // inside the body): the class colour with texture and hue noise; gel tinted by tissue within a
+  // few pixels (translucent).
+  void colour(const SliceModel& s, double qx, double qy, bool body, std::uint16_t label, double h,
+              double depth, double rgb[3]) const {
     const double n =
         0.5 * s.tex[0].at(qx, qy) + 0.3 * s.tex[1].at(qx, qy) + 0.2 * s.tex[2].at(qx, qy);
     const double m = s.hue.at(qx, qy);
-    double rgb[3];
     if (!body) {
       // Gel, tinted by tissue within a few pixels (translucent), in cavities as well.
       const double gel[3] = {36, 64, 148}, tint[3] = {160, 118, 104};
@@ -306,8 +314,6 @@ class CtModel {
       for (int i = 0; i < 3; ++i)
         rgb[i] = base[i] * (1 + texture * n) + hue[i];
     }
-    for (int i = 0; i < 3; ++i)
-      out.rgb[i] = float(rgb[i]);
   }
 
  private:
@@ -388,246 +394,300 @@ FromCtSummary make_phantom_from_ct(const std::string& out_dir, const CtVolume& c
 
 namespace {
 
-FromCtSummary make_from_ct(const std::string& out_dir, const CtVolume& ct,
-                           const FromCtOptions& options) {
-  const auto start = std::chrono::steady_clock::now();
-  const int every = options.ct_every;  // ct: the CT interpolated along z when > 1
-  if (ct.width < 8 || ct.height < 8 || ct.slices < 2)
-    throw UsageError(
-        cat(ct.source, ": CT of ", ct.width, "x", ct.height, "x", ct.slices, " is too small"));
-  if (options.scale < 1 || options.scale > 8)
-    throw UsageError(cat("--scale ", options.scale, ": must be 1..8"));
-  const int N = options.slices > 0 ? options.slices : ct.slices;
-  if (options.slices < 0 || N < 2 || N > ct.slices)
-    throw UsageError(cat("--slices ", options.slices, ": must be between 2 and ", ct.slices,
-                         " (the CT's slices)"));
-  const int first = options.first >= 0 ? options.first : (ct.slices - N) / 2;
-  if (first + N > ct.slices)
-    throw UsageError(
-        cat("--first ", first, " with ", N, " slices runs past the CT's ", ct.slices, " slices"));
+// The generator of one from-CT phantom folder, step by step (make_from_ct runs the steps in
+// order). Holds the CT, the options, the grid and what each step leaves for the next.
+class FromCtGenerator {
+ public:
+  FromCtGenerator(const CtVolume& ct, const FromCtOptions& options)
+      : ct_(ct), options_(options), every_(options.ct_every) {
+    check_and_size();
+  }
 
-  Geometry g;
-  g.scale = options.scale;
-  g.Wct = ct.width, g.Hct = ct.height;
-  const int margin = options.margin_px >= 0 ? options.margin_px : 32 * g.scale;
-  g.W = ct.width * g.scale + 2 * margin, g.H = ct.height * g.scale + 2 * margin;
-  g.cx = (g.W - 1) * 0.5, g.cy = (g.H - 1) * 0.5, g.cxct = (g.Wct - 1) * 0.5,
-  g.cyct = (g.Hct - 1) * 0.5;
-  g.pixel_mm = ct.spacing_mm[0] / g.scale;
-  const int W = g.W, H = g.H;
-  const std::size_t plane = std::size_t(W) * H;
-  const double skin_px = kSkinMm / g.pixel_mm;
-  const CtModel model(g, skin_px);
-  const int threads = resolve_threads(options.threads);
+  FromCtSummary run(const std::string& out_dir) {
+    const auto start = std::chrono::steady_clock::now();
+    measure_components();
+    find_body_component();
+    build_slice_models();
+    draw_transforms();
+    PhantomFolder folder(out_dir, g_.W, g_.H, n_, spacing(), file_digits(n_));
+    render(folder);
+    write_truth_and_config(folder);
+    FromCtSummary summary;
+    summary.width = g_.W, summary.height = g_.H, summary.slices = n_;
+    summary.ct_width = g_.Wct, summary.ct_height = g_.Hct, summary.first_ct_slice = first_;
+    summary.jump_slice = jump_slice_;
+    summary.body_fraction = body_fraction_;
+    summary.seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    return summary;
+  }
+
+ private:
+  std::array<double, 3> spacing() const { return {g_.pixel_mm, g_.pixel_mm, ct_.spacing_mm[2]}; }
+
+  // The options against the CT, the slices used and the output grid (ct: the CT interpolated
+  // along z when every_ > 1).
+  void check_and_size() {
+    const CtVolume& ct = ct_;
+    if (ct.width < 8 || ct.height < 8 || ct.slices < 2)
+      throw UsageError(
+          cat(ct.source, ": CT of ", ct.width, "x", ct.height, "x", ct.slices, " is too small"));
+    if (options_.scale < 1 || options_.scale > 8)
+      throw UsageError(cat("--scale ", options_.scale, ": must be 1..8"));
+    n_ = options_.slices > 0 ? options_.slices : ct.slices;
+    if (options_.slices < 0 || n_ < 2 || n_ > ct.slices)
+      throw UsageError(cat("--slices ", options_.slices, ": must be between 2 and ", ct.slices,
+                           " (the CT's slices)"));
+    first_ = options_.first >= 0 ? options_.first : (ct.slices - n_) / 2;
+    if (first_ + n_ > ct.slices)
+      throw UsageError(cat("--first ", first_, " with ", n_, " slices runs past the CT's ",
+                           ct.slices, " slices"));
+    g_.scale = options_.scale;
+    g_.Wct = ct.width, g_.Hct = ct.height;
+    margin_ = options_.margin_px >= 0 ? options_.margin_px : 32 * g_.scale;
+    g_.W = ct.width * g_.scale + 2 * margin_, g_.H = ct.height * g_.scale + 2 * margin_;
+    g_.cx = (g_.W - 1) * 0.5, g_.cy = (g_.H - 1) * 0.5, g_.cxct = (g_.Wct - 1) * 0.5,
+    g_.cyct = (g_.Hct - 1) * 0.5;
+    g_.pixel_mm = ct.spacing_mm[0] / g_.scale;
+    model_ = std::make_unique<CtModel>(g_, kSkinMm / g_.pixel_mm);
+    threads_ = resolve_threads(options_.threads);
+  }
 
   // 1. Per slice: the CT as float, HU on the output grid, components above the threshold.
-  std::vector<SliceModel> slices(static_cast<std::size_t>(N));
-  std::vector<cv::Mat> comp(static_cast<std::size_t>(N));
-  std::vector<int> comp_count(static_cast<std::size_t>(N));
-  parallel_for(N, threads, [&](std::int64_t kk) {
-    const int k = int(kk);
-    SliceModel& s = slices[std::size_t(k)];
-    // One pixel of air around the CT: outside its field of view the model is air (−1024 HU).
-    cv::Mat hu;
-    cv::Mat(g.Hct, g.Wct, CV_16SC1, const_cast<std::int16_t*>(ct.slice(first + k)))
-        .convertTo(hu, CV_32F);
-    cv::copyMakeBorder(hu, s.ct, 1, 1, 1, 1, cv::BORDER_CONSTANT, cv::Scalar(-1024));
-    cv::Mat above(H, W, CV_8UC1);
-    for (int y = 0; y < H; ++y)
-      for (int x = 0; x < W; ++x)
-        above.at<std::uint8_t>(y, x) = model.hu(s, x, y) > kBodyHu ? 1 : 0;
-    comp_count[std::size_t(k)] = cv::connectedComponents(above, comp[std::size_t(k)], 8, CV_32S);
-  });
+  void measure_components() {
+    const int W = g_.W, H = g_.H;
+    slices_.resize(static_cast<std::size_t>(n_));
+    comp_.resize(static_cast<std::size_t>(n_));
+    comp_count_.resize(static_cast<std::size_t>(n_));
+    parallel_for(n_, threads_, [&](std::int64_t kk) {
+      const int k = int(kk);
+      SliceModel& s = slices_[std::size_t(k)];
+      // One pixel of air around the CT: outside its field of view the model is air (−1024 HU).
+      cv::Mat hu;
+      cv::Mat(g_.Hct, g_.Wct, CV_16SC1, const_cast<std::int16_t*>(ct_.slice(first_ + k)))
+          .convertTo(hu, CV_32F);
+      cv::copyMakeBorder(hu, s.ct, 1, 1, 1, 1, cv::BORDER_CONSTANT, cv::Scalar(-1024));
+      cv::Mat above(H, W, CV_8UC1);
+      for (int y = 0; y < H; ++y)
+        for (int x = 0; x < W; ++x)
+          above.at<std::uint8_t>(y, x) = model_->hu(s, x, y) > kBodyHu ? 1 : 0;
+      comp_count_[std::size_t(k)] =
+          cv::connectedComponents(above, comp_[std::size_t(k)], 8, CV_32S);
+    });
+  }
+
   // 2. The body component: the largest 3-D union of slice components (face-connected in z).
-  std::vector<int> offset(std::size_t(N) + 1, 0);
-  for (int k = 0; k < N; ++k)
-    offset[std::size_t(k) + 1] = offset[std::size_t(k)] + comp_count[std::size_t(k)];
-  UnionFind uf;
-  uf.parent.resize(std::size_t(offset[std::size_t(N)]));
-  std::iota(uf.parent.begin(), uf.parent.end(), 0);
-  for (int k = 0; k + 1 < N; ++k) {
-    const cv::Mat& a = comp[std::size_t(k)];
-    const cv::Mat& b = comp[std::size_t(k) + 1];
-    for (int y = 0; y < H; ++y) {
-      const int* ra = a.ptr<int>(y);
-      const int* rb = b.ptr<int>(y);
-      for (int x = 0; x < W; ++x)
-        if (ra[x] > 0 && rb[x] > 0)
-          uf.join(offset[std::size_t(k)] + ra[x], offset[std::size_t(k) + 1] + rb[x]);
+  void find_body_component() {
+    const int W = g_.W, H = g_.H, N = n_;
+    offset_.assign(std::size_t(N) + 1, 0);
+    for (int k = 0; k < N; ++k)
+      offset_[std::size_t(k) + 1] = offset_[std::size_t(k)] + comp_count_[std::size_t(k)];
+    uf_.parent.resize(std::size_t(offset_[std::size_t(N)]));
+    std::iota(uf_.parent.begin(), uf_.parent.end(), 0);
+    for (int k = 0; k + 1 < N; ++k) {
+      const cv::Mat& a = comp_[std::size_t(k)];
+      const cv::Mat& b = comp_[std::size_t(k) + 1];
+      for (int y = 0; y < H; ++y) {
+        const int* ra = a.ptr<int>(y);
+        const int* rb = b.ptr<int>(y);
+        for (int x = 0; x < W; ++x)
+          if (ra[x] > 0 && rb[x] > 0)
+            uf_.join(offset_[std::size_t(k)] + ra[x], offset_[std::size_t(k) + 1] + rb[x]);
+      }
     }
-  }
-  std::vector<std::int64_t> size(uf.parent.size(), 0);
-  for (int k = 0; k < N; ++k) {
-    const cv::Mat& a = comp[std::size_t(k)];
-    for (int y = 0; y < H; ++y) {
-      const int* ra = a.ptr<int>(y);
-      for (int x = 0; x < W; ++x)
-        if (ra[x] > 0) ++size[std::size_t(uf.find(offset[std::size_t(k)] + ra[x]))];
+    std::vector<std::int64_t> size(uf_.parent.size(), 0);
+    for (int k = 0; k < N; ++k) {
+      const cv::Mat& a = comp_[std::size_t(k)];
+      for (int y = 0; y < H; ++y) {
+        const int* ra = a.ptr<int>(y);
+        for (int x = 0; x < W; ++x)
+          if (ra[x] > 0) ++size[std::size_t(uf_.find(offset_[std::size_t(k)] + ra[x]))];
+      }
     }
+    body_root_ = int(std::max_element(size.begin(), size.end()) - size.begin());
+    if (size.empty() || size[std::size_t(body_root_)] == 0)
+      throw InputError(cat(ct_.source, ": nothing above ", kBodyHu, " HU in slices ", first_, "..",
+                           first_ + N - 1));
+    const std::size_t plane = std::size_t(W) * H;
+    body_fraction_ = double(size[std::size_t(body_root_)]) / (double(plane) * N);
   }
-  const int body_root = int(std::max_element(size.begin(), size.end()) - size.begin());
-  if (size.empty() || size[std::size_t(body_root)] == 0)
-    throw InputError(
-        cat(ct.source, ": nothing above ", kBodyHu, " HU in slices ", first, "..", first + N - 1));
-  const double body_fraction = double(size[std::size_t(body_root)]) / (double(plane) * N);
 
   // 3. Masks, distance maps, texture layers; the body's bounding box over the stack.
-  int bx0 = W, bx1 = -1, by0 = H, by1 = -1;
-  parallel_for(N, threads, [&](std::int64_t kk) {
-    const int k = int(kk);
-    SliceModel& s = slices[std::size_t(k)];
-    s.mask = cv::Mat::zeros(H, W, CV_8UC1);
-    const cv::Mat& a = comp[std::size_t(k)];
-    std::vector<std::uint8_t> is_body(static_cast<std::size_t>(comp_count[std::size_t(k)]), 0);
-    for (int c = 1; c < comp_count[std::size_t(k)]; ++c)
-      is_body[std::size_t(c)] = uf.find(offset[std::size_t(k)] + c) == body_root;
-    for (int y = 0; y < H; ++y)
-      for (int x = 0; x < W; ++x) {
-        const int c = a.at<int>(y, x);
-        if (c > 0 && is_body[std::size_t(c)]) s.mask.at<std::uint8_t>(y, x) = 1;
-      }
-    cv::distanceTransform(s.mask, s.depth, cv::DIST_L2, cv::DIST_MASK_PRECISE);
-    cv::Mat inv = 1 - s.mask;
-    cv::distanceTransform(inv, s.outside, cv::DIST_L2, cv::DIST_MASK_PRECISE);
-    // Texture: a fresh lattice every slice (scale_slices 1, sampled at integer slices).
-    const double pad = 0.3 * std::max(W, H);
-    const double scales[3] = {8.0 * g.scale, 3.0 * g.scale, 1.5 * g.scale};
-    for (int o = 0; o < 3; ++o)
-      s.tex[o] = NoiseLayer(mix64(options.seed * 8 + 1000 + o), scales[o], 1.0, k, -pad, W + pad,
-                            -pad, H + pad);
-    s.hue = NoiseLayer(mix64(options.seed * 8 + 1100), 12.0 * g.scale, 1.0, k, -pad, W + pad, -pad,
-                       H + pad);
-  });
-  comp.clear();
-  for (int k = 0; k < N; ++k) {
-    cv::Rect r = cv::boundingRect(slices[std::size_t(k)].mask);
-    if (r.area() == 0) continue;
-    bx0 = std::min(bx0, r.x), by0 = std::min(by0, r.y);
-    bx1 = std::max(bx1, r.x + r.width - 1), by1 = std::max(by1, r.y + r.height - 1);
+  void build_slice_models() {
+    const int W = g_.W, H = g_.H;
+    bx0_ = W, bx1_ = -1, by0_ = H, by1_ = -1;
+    parallel_for(n_, threads_, [&](std::int64_t kk) {
+      const int k = int(kk);
+      SliceModel& s = slices_[std::size_t(k)];
+      s.mask = cv::Mat::zeros(H, W, CV_8UC1);
+      const cv::Mat& a = comp_[std::size_t(k)];
+      std::vector<std::uint8_t> is_body(static_cast<std::size_t>(comp_count_[std::size_t(k)]), 0);
+      for (int c = 1; c < comp_count_[std::size_t(k)]; ++c)
+        is_body[std::size_t(c)] = uf_.find(offset_[std::size_t(k)] + c) == body_root_;
+      for (int y = 0; y < H; ++y)
+        for (int x = 0; x < W; ++x) {
+          const int c = a.at<int>(y, x);
+          if (c > 0 && is_body[std::size_t(c)]) s.mask.at<std::uint8_t>(y, x) = 1;
+        }
+      cv::distanceTransform(s.mask, s.depth, cv::DIST_L2, cv::DIST_MASK_PRECISE);
+      cv::Mat inv = 1 - s.mask;
+      cv::distanceTransform(inv, s.outside, cv::DIST_L2, cv::DIST_MASK_PRECISE);
+      // Texture: a fresh lattice every slice (scale_slices 1, sampled at integer slices).
+      const double pad = 0.3 * std::max(W, H);
+      const double scales[3] = {8.0 * g_.scale, 3.0 * g_.scale, 1.5 * g_.scale};
+      for (int o = 0; o < 3; ++o)
+        s.tex[o] = NoiseLayer(mix64(options_.seed * 8 + 1000 + o), scales[o], 1.0, k, -pad, W + pad,
+                              -pad, H + pad);
+      s.hue = NoiseLayer(mix64(options_.seed * 8 + 1100), 12.0 * g_.scale, 1.0, k, -pad, W + pad,
+                         -pad, H + pad);
+    });
+    comp_.clear();
+    for (int k = 0; k < n_; ++k) {
+      cv::Rect r = cv::boundingRect(slices_[std::size_t(k)].mask);
+      if (r.area() == 0) continue;
+      bx0_ = std::min(bx0_, r.x), by0_ = std::min(by0_, r.y);
+      bx1_ = std::max(bx1_, r.x + r.width - 1), by1_ = std::max(by1_, r.y + r.height - 1);
+    }
+  }
+
+  // The convex hull of the body over the whole stack, which every candidate transform is
+  // checked against.
+  std::vector<cv::Point> body_hull() const {
+    cv::Mat body_union = cv::Mat::zeros(g_.H, g_.W, CV_8UC1);
+    for (int k = 0; k < n_; ++k)
+      body_union |= slices_[std::size_t(k)].mask;
+    std::vector<cv::Point> nonzero, hull;
+    cv::findNonZero(body_union, nonzero);
+    cv::convexHull(nonzero, hull);
+    return hull;
   }
 
   // 4. The true transforms: camera offset + random walk + one block jump. Every candidate is
   // checked against the convex hull of the body over the whole stack, so the body never leaves
   // the colour frame (a step that would push it out is reflected, a jump turned elsewhere).
-  cv::Mat body_union = cv::Mat::zeros(H, W, CV_8UC1);
-  for (int k = 0; k < N; ++k)
-    body_union |= slices[std::size_t(k)].mask;
-  std::vector<cv::Point> nonzero, hull;
-  cv::findNonZero(body_union, nonzero);
-  cv::convexHull(nonzero, hull);
-  auto fits = [&](double rot, double dx, double dy) {
-    const double th = rot * kPi / 180.0, cs = std::cos(th), sn = std::sin(th);
-    for (const cv::Point& q : hull) {
-      // Pixel q covers q ± 0.5: keep kFrameMarginPx plus that half pixel.
-      const double x = g.cx + cs * (q.x - g.cx) - sn * (q.y - g.cy) + dx;
-      const double y = g.cy + sn * (q.x - g.cx) + cs * (q.y - g.cy) + dy;
-      const double m = kFrameMarginPx + 0.5;
-      if (x < m || y < m || x > W - 1 - m || y > H - 1 - m) return false;
-    }
-    return true;
-  };
-  Random rng(options.seed * 0x9e3779b97f4a7c15ull + 101);
-  const double half = g.scale * 0.5;  // sizes below are for scale 2
-  const double cam_angle = rng.uniform(0, 2 * kPi);
-  double cam_mag = rng.uniform(8.0, 12.0) * half;
-  double cam_rot = rng.uniform(1.0, 2.0) * (rng.uniform() < 0.5 ? -1 : 1);
-  const int jump_slice = options.jump && N >= 4 ? N / 2 : -1;
-  const double jump_mag = rng.uniform(20.0, 35.0) * half, jump_angle = rng.uniform(0, 2 * kPi);
-  const double jump_rot = rng.uniform(3.0, 5.0) * (rng.uniform() < 0.5 ? -1 : 1);
-  for (int i = 0;
-       i < 8 && !fits(cam_rot, cam_mag * std::cos(cam_angle), cam_mag * std::sin(cam_angle)); ++i)
-    cam_mag *= 0.5, cam_rot *= 0.5;
-  const double cam_dx = cam_mag * std::cos(cam_angle), cam_dy = cam_mag * std::sin(cam_angle);
-  if (!fits(cam_rot, cam_dx, cam_dy))
-    throw Error(cat("phantom: the body (x ", bx0, "..", bx1, ", y ", by0, "..", by1, ") fills the ",
-                    W, "x", H, " frame; use a larger --margin"));
-  std::vector<SliceTruth> truth(static_cast<std::size_t>(N));
-  double dx = cam_dx, dy = cam_dy, rot = cam_rot;  // the current total transform
-  for (int k = 0; k < N; ++k) {
-    SliceTruth& t = truth[std::size_t(k)];
-    t.gain = 1 + rng.uniform(-kGainRange, kGainRange);
-    t.tilt_x = rng.uniform(-kTiltRange, kTiltRange) / W;
-    t.tilt_y = rng.uniform(-kTiltRange, kTiltRange) / H;
-    const double sx = rng.normal(kDriftPx), sy = rng.normal(kDriftPx), sr = rng.normal(kDriftDeg);
-    if (options.drift && k > 0) {
-      if (fits(rot + sr, dx + sx, dy + sy)) {
-        rot += sr, dx += sx, dy += sy;
-      } else if (fits(rot - sr, dx - sx, dy - sy)) {
-        rot -= sr, dx -= sx, dy -= sy;
+  void draw_transforms() {
+    const int W = g_.W, H = g_.H, N = n_;
+    const std::vector<cv::Point> hull = body_hull();
+    auto fits = [&](double rot, double dx, double dy) {
+      const double th = rot * kPi / 180.0, cs = std::cos(th), sn = std::sin(th);
+      for (const cv::Point& q : hull) {
+        // Pixel q covers q ± 0.5: keep kFrameMarginPx plus that half pixel.
+        const double x = g_.cx + cs * (q.x - g_.cx) - sn * (q.y - g_.cy) + dx;
+        const double y = g_.cy + sn * (q.x - g_.cx) + cs * (q.y - g_.cy) + dy;
+        const double m = kFrameMarginPx + 0.5;
+        if (x < m || y < m || x > W - 1 - m || y > H - 1 - m) return false;
       }
-    }
-    if (k == jump_slice) {
-      bool placed = false;
-      for (int attempt = 0; attempt < 48 && !placed; ++attempt) {
-        const double mag = jump_mag * (1.0 - 0.15 * (attempt / 16));
-        const double r = (attempt / 8) % 2 ? -jump_rot : jump_rot;
-        const double a = jump_angle + (attempt % 8) * kPi / 4;
-        const double jx = mag * std::cos(a), jy = mag * std::sin(a);
-        if (fits(rot + r, dx + jx, dy + jy)) {
-          rot += r, dx += jx, dy += jy, placed = true;
+      return true;
+    };
+    Random rng(options_.seed * 0x9e3779b97f4a7c15ull + 101);
+    const double half = g_.scale * 0.5;  // sizes below are for scale 2
+    const double cam_angle = rng.uniform(0, 2 * kPi);
+    double cam_mag = rng.uniform(8.0, 12.0) * half;
+    cam_rot_ = rng.uniform(1.0, 2.0) * (rng.uniform() < 0.5 ? -1 : 1);
+    jump_slice_ = options_.jump && N >= 4 ? N / 2 : -1;
+    const double jump_mag = rng.uniform(20.0, 35.0) * half, jump_angle = rng.uniform(0, 2 * kPi);
+    const double jump_rot = rng.uniform(3.0, 5.0) * (rng.uniform() < 0.5 ? -1 : 1);
+    for (int i = 0;
+         i < 8 && !fits(cam_rot_, cam_mag * std::cos(cam_angle), cam_mag * std::sin(cam_angle));
+         ++i)
+      cam_mag *= 0.5, cam_rot_ *= 0.5;
+    cam_dx_ = cam_mag * std::cos(cam_angle), cam_dy_ = cam_mag * std::sin(cam_angle);
+    if (!fits(cam_rot_, cam_dx_, cam_dy_))
+      throw Error(cat("phantom: the body (x ", bx0_, "..", bx1_, ", y ", by0_, "..", by1_,
+                      ") fills the ", W, "x", H, " frame; use a larger --margin"));
+    truth_.resize(static_cast<std::size_t>(N));
+    double dx = cam_dx_, dy = cam_dy_, rot = cam_rot_;  // the current total transform
+    for (int k = 0; k < N; ++k) {
+      SliceTruth& t = truth_[std::size_t(k)];
+      t.gain = 1 + rng.uniform(-kGainRange, kGainRange);
+      t.tilt_x = rng.uniform(-kTiltRange, kTiltRange) / W;
+      t.tilt_y = rng.uniform(-kTiltRange, kTiltRange) / H;
+      const double sx = rng.normal(kDriftPx), sy = rng.normal(kDriftPx), sr = rng.normal(kDriftDeg);
+      if (options_.drift && k > 0) {
+        if (fits(rot + sr, dx + sx, dy + sy)) {
+          rot += sr, dx += sx, dy += sy;
+        } else if (fits(rot - sr, dx - sx, dy - sy)) {
+          rot -= sr, dx -= sx, dy -= sy;
         }
       }
-      if (!placed)
-        throw Error(cat("phantom: no room for a block jump of ", jump_mag, " px in a ", W, "x", H,
-                        " frame with the body at x ", bx0, "..", bx1, ", y ", by0, "..", by1,
-                        "; use a larger --margin"));
-      t.jump = true;
+      if (k == jump_slice_) {
+        bool placed = false;
+        for (int attempt = 0; attempt < 48 && !placed; ++attempt) {
+          const double mag = jump_mag * (1.0 - 0.15 * (attempt / 16));
+          const double r = (attempt / 8) % 2 ? -jump_rot : jump_rot;
+          const double a = jump_angle + (attempt % 8) * kPi / 4;
+          const double jx = mag * std::cos(a), jy = mag * std::sin(a);
+          if (fits(rot + r, dx + jx, dy + jy)) {
+            rot += r, dx += jx, dy += jy, placed = true;
+          }
+        }
+        if (!placed)
+          throw Error(cat("phantom: no room for a block jump of ", jump_mag, " px in a ", W, "x", H,
+                          " frame with the body at x ", bx0_, "..", bx1_, ", y ", by0_, "..", by1_,
+                          "; use a larger --margin"));
+        t.jump = true;
+      }
+      t.dx = dx, t.dy = dy, t.rot = rot;
     }
-    t.dx = dx, t.dy = dy, t.rot = rot;
   }
 
-  // 5. Render: truth on the output grid; observed colour and seg on each slice's drifted grid.
-  const std::string rgb_dir = out_dir + "/rgb", ct_dir = out_dir + "/ct",
-                    seg_dir = out_dir + "/seg", truth_dir = out_dir + "/truth";
-  for (const auto& d : {rgb_dir, ct_dir, seg_dir, truth_dir})
-    make_directories(d);
-  const int digits = std::max(4, int(std::to_string(N - 1).size()));
-  NrrdVolume t_rgb, t_ct, t_mask, t_labels, t_seg;
-  const std::array<double, 3> spacing{g.pixel_mm, g.pixel_mm, ct.spacing_mm[2]};
-  auto init = [&](NrrdVolume& v, NrrdType type, int components) {
-    v.type = type, v.components = components, v.dims = {W, H, N}, v.spacing_mm = spacing;
-    v.data.assign(v.byte_size(), 0);
-  };
-  init(t_rgb, NrrdType::kUint8, 3);
-  init(t_ct, NrrdType::kInt16, 1);
-  init(t_mask, NrrdType::kUint8, 1);
-  init(t_labels, NrrdType::kUint16, 1);
-  init(t_seg, NrrdType::kUint16, 1);
-  const GaussianTable gaussian;
-  Progress progress("vispack-phantom", N, "slices", options.quiet);
-  parallel_for(N, threads, [&](std::int64_t kk) {
-    const int k = int(kk);
-    const SliceModel& s = slices[std::size_t(k)];
-    const SliceTruth& t = truth[std::size_t(k)];
+  // 5. Render: truth on the output grid; observed colour and seg on each slice's drifted grid;
+  // the CT slices as they are.
+  void render(PhantomFolder& folder) const {
+    const GaussianTable gaussian;
+    Progress progress("vispack-phantom", n_, "slices", options_.quiet);
+    parallel_for(n_, threads_, [&](std::int64_t kk) {
+      const int k = int(kk);
+      render_truth(folder, k);
+      render_observed(folder, k, gaussian);
+      // The CT slice as it is: drift-free, its own resolution, stored = HU + 1024.
+      cv::Mat ct16(g_.Hct, g_.Wct, CV_16UC1);
+      const std::int16_t* src = ct_.slice(first_ + k);
+      for (int y = 0; y < g_.Hct; ++y)
+        for (int x = 0; x < g_.Wct; ++x)
+          ct16.at<std::uint16_t>(y, x) = static_cast<std::uint16_t>(
+              std::clamp(int(src[std::size_t(y) * g_.Wct + x]) + 1024, 0, 65535));
+      if ((first_ + k) % every_ == 0)  // the CT's own slices only (first is a multiple of every)
+        folder.write_ct(k / every_, ct16);
+      progress.advance();
+    });
+    progress.finish();
+    folder.write_truth_volumes();
+  }
+
+  // Slice k of the truth volumes on the output grid.
+  void render_truth(PhantomFolder& folder, int k) const {
+    const int W = g_.W, H = g_.H;
+    const SliceModel& s = slices_[std::size_t(k)];
     Point pt;
-    auto* o_rgb = t_rgb.as<std::uint8_t>() + plane * 3 * k;
-    auto* o_ct = t_ct.as<std::int16_t>() + plane * k;
-    auto* o_mask = t_mask.as<std::uint8_t>() + plane * k;
-    auto* o_lab = t_labels.as<std::uint16_t>() + plane * k;
-    auto* o_seg = t_seg.as<std::uint16_t>() + plane * k;
+    const detail::TruthPlanes truth = folder.truth_planes(k);
     for (int y = 0; y < H; ++y)
       for (int x = 0; x < W; ++x) {
-        model.eval(s, x, y, true, pt);
-        const std::size_t i = std::size_t(y) * W + x;
-        for (int c = 0; c < 3; ++c)
-          o_rgb[i * 3 + c] = to_u8(pt.rgb[c]);
-        o_ct[i] = static_cast<std::int16_t>(std::clamp(std::lround(pt.hu), -32768L, 32767L));
-        o_mask[i] = pt.body ? 1 : 0;
-        o_lab[i] = pt.label;
+        model_->eval(s, x, y, true, pt);
+        truth.set(std::size_t(y) * W + x, pt.rgb, pt.hu, -32768L, 32767L, pt.body, pt.label);
       }
-    fill_enclosed_cavities(o_mask, W, H);
+    fill_enclosed_cavities(truth.mask, W, H);
+  }
+
+  // Observed colour and seg slice k on its drifted grid (and the seg IDs as drawn).
+  void render_observed(PhantomFolder& folder, int k, const GaussianTable& gaussian) const {
+    const int W = g_.W, H = g_.H;
+    const SliceModel& s = slices_[std::size_t(k)];
+    const SliceTruth& t = truth_[std::size_t(k)];
+    Point pt;
+    auto* o_seg = folder.truth_seg_labels(k);
     cv::Mat rgb(H, W, CV_8UC3), seg(H, W, CV_8UC3);
     const double th = t.rot * kPi / 180.0, cs = std::cos(th), sn = std::sin(th);
-    Random noise(mix64(options.seed ^ (0x5851f42d4c957f2dull * std::uint64_t(k + 1))));
+    Random noise(mix64(options_.seed ^ (0x5851f42d4c957f2dull * std::uint64_t(k + 1))));
     for (int y = 0; y < H; ++y) {
       auto* row = rgb.ptr<std::uint8_t>(y);
       auto* srow = seg.ptr<std::uint8_t>(y);
       for (int x = 0; x < W; ++x) {
         // q = c + R(−θ)(p − c − d), the inverse of p = c + R(θ)(q − c) + d.
-        const double px = x - g.cx - t.dx, py = y - g.cy - t.dy;
-        const double qx = g.cx + cs * px + sn * py, qy = g.cy - sn * px + cs * py;
-        model.eval(s, qx, qy, true, pt);
-        const double light = t.gain * (1 + t.tilt_x * (x - g.cx) + t.tilt_y * (y - g.cy));
+        const double px = x - g_.cx - t.dx, py = y - g_.cy - t.dy;
+        const double qx = g_.cx + cs * px + sn * py, qy = g_.cy - sn * px + cs * py;
+        model_->eval(s, qx, qy, true, pt);
+        const double light = t.gain * (1 + t.tilt_x * (x - g_.cx) + t.tilt_y * (y - g_.cy));
         float gauss[4];
         noise.normal4(gaussian, gauss);
         for (int c = 0; c < 3; ++c)
@@ -637,90 +697,72 @@ FromCtSummary make_from_ct(const std::string& out_dir, const CtVolume& ct,
           srow[x * 3 + c] = std::uint8_t(kClasses[pt.label].palette[std::size_t(c)]);
       }
     }
-    pipeline::write_image(rgb_dir + "/" + numbered("rgb", k, digits, ".png"), rgb);
-    pipeline::write_image(seg_dir + "/" + numbered("seg", k, digits, ".png"), seg);
-    // The CT slice as it is: drift-free, its own resolution, stored = HU + 1024.
-    cv::Mat ct16(g.Hct, g.Wct, CV_16UC1);
-    const std::int16_t* src = ct.slice(first + k);
-    for (int y = 0; y < g.Hct; ++y)
-      for (int x = 0; x < g.Wct; ++x)
-        ct16.at<std::uint16_t>(y, x) = static_cast<std::uint16_t>(
-            std::clamp(int(src[std::size_t(y) * g.Wct + x]) + 1024, 0, 65535));
-    if ((first + k) % every == 0)  // the CT's own slices only (first is a multiple of every)
-      pipeline::write_image(ct_dir + "/" + numbered("ct", k / every, digits, ".png"), ct16);
-    progress.advance();
-  });
-  progress.finish();
-  write_nrrd(truth_dir + "/rgb.nrrd", t_rgb);
-  write_nrrd(truth_dir + "/ct.nrrd", t_ct);
-  write_nrrd(truth_dir + "/mask.nrrd", t_mask);
-  write_nrrd(truth_dir + "/labels.nrrd", t_labels);
-  write_nrrd(truth_dir + "/seg_labels.nrrd", t_seg);
-
-  detail::TruthTransforms tt;
-  tt.width = W, tt.height = H, tt.frame = "ct", tt.has_ct = true;
-  tt.ct_scale = g.scale;  // output_frame identity: ct_to_rgb is the pure pixel-size ratio
-  tt.extra["margin_px"] = margin;
-  for (int k = 0; k < N; ++k) {
-    const SliceTruth& t = truth[std::size_t(k)];
-    detail::TruthSlice s;
-    s.index = k, s.number = k, s.file = numbered("rgb", k, digits, ".png");
-    s.dx_px = t.dx, s.dy_px = t.dy, s.rotation_deg = t.rot, s.jump = t.jump, s.gain = t.gain;
-    // Observed = colour · gain · (1 + tilt_x·(x − cx) + tilt_y·(y − cy)) + noise (observed px).
-    s.extra["light_tilt"] = {t.tilt_x, t.tilt_y};
-    tt.slices.push_back(s);
+    folder.write_rgb(k, ".png", rgb);
+    folder.write_seg(k, ".png", seg);
   }
-  tt.extra["camera_offset"] = {{"rotation_deg", cam_rot}, {"dx_px", cam_dx}, {"dy_px", cam_dy}};
-  tt.extra["noise_sigma"] = kNoiseSigma;
-  tt.extra["preset"] = "from-ct";
-  tt.extra["seed"] = options.seed;
-  tt.extra["source_ct"] = fs::path(ct.source).filename().string();
-  tt.extra["first_ct_slice"] = first;
-  tt.extra["body_hu"] = kBodyHu;
-  detail::write_truth_transforms(truth_dir + "/transforms.json", tt);
 
-  ojson palette;
-  palette["labels"] = ojson::array();
-  for (int id = 1; id < kCount; ++id)
-    palette["labels"].push_back(
-        {{"id", id}, {"name", kClasses[id].name}, {"colour", kClasses[id].palette}});
-  write_file_atomic(out_dir + "/palette.json", palette.dump(2) + "\n");
+  // truth/transforms.json, palette.json and config.json.
+  void write_truth_and_config(const PhantomFolder& folder) const {
+    TruthTransforms tt;
+    tt.width = g_.W, tt.height = g_.H, tt.frame = "ct", tt.has_ct = true;
+    tt.ct_scale = g_.scale;  // output_frame identity: ct_to_rgb is the pure pixel-size ratio
+    tt.extra["margin_px"] = margin_;
+    for (int k = 0; k < n_; ++k) {
+      const SliceTruth& t = truth_[std::size_t(k)];
+      TruthSlice s;
+      s.index = k, s.number = k, s.file = folder.rgb_name(k, ".png");
+      s.dx_px = t.dx, s.dy_px = t.dy, s.rotation_deg = t.rot, s.jump = t.jump, s.gain = t.gain;
+      // Observed = colour · gain · (1 + tilt_x·(x − cx) + tilt_y·(y − cy)) + noise (observed px).
+      s.extra["light_tilt"] = {t.tilt_x, t.tilt_y};
+      tt.slices.push_back(s);
+    }
+    tt.extra["camera_offset"] = {
+        {"rotation_deg", cam_rot_}, {"dx_px", cam_dx_}, {"dy_px", cam_dy_}};
+    tt.extra["noise_sigma"] = kNoiseSigma;
+    tt.extra["preset"] = "from-ct";
+    tt.extra["seed"] = options_.seed;
+    tt.extra["source_ct"] = fs::path(ct_.source).filename().string();
+    tt.extra["first_ct_slice"] = first_;
+    tt.extra["body_hu"] = kBodyHu;
+    folder.write_truth_transforms(tt);
 
-  {
-    const std::string base = fs::absolute(out_dir).lexically_normal().string();
-    pipeline::Config config;
-    config.path = base + "/config.json";
-    config.name = "phantom-from-ct";
-    config.work_dir = base + "/work";
-    config.output = base + "/out/volume.vpk";
-    config.vdb_output = base + "/out/volume.vdb";
-    config.spacing_mm = spacing;
-    config.rgb.dir = base + "/rgb";
-    config.rgb.pattern = "rgb_{n}.png";
-    pipeline::CtSource c;
-    c.dir = base + "/ct";
-    c.pattern = "ct_{n}.png";
-    c.pixel_spacing_mm = {ct.spacing_mm[0], ct.spacing_mm[1]};
-    c.slope = 1.0;
-    c.intercept = -1024.0;
-    if (every > 1) c.slice_spacing_mm = spacing[2] * every;
-    config.ct = c;
-    pipeline::SegSource sg;
-    sg.dir = base + "/seg";
-    sg.pattern = "seg_{n}.png";
-    sg.palette = base + "/palette.json";
-    config.seg = sg;
+    std::vector<PaletteEntry> palette;
+    for (int id = 1; id < kCount; ++id)
+      palette.push_back({id, kClasses[id].name, kClasses[id].palette});
+    folder.write_palette(palette);
+
+    const std::array<double, 3> spacing = this->spacing();
+    pipeline::Config config = folder.base_config("phantom-from-ct", ".png",
+                                                 {ct_.spacing_mm[0], ct_.spacing_mm[1]}, ".png");
+    if (every_ > 1) config.ct->slice_spacing_mm = spacing[2] * every_;
     config.mask.hu_threshold = kBodyHu;
-    pipeline::write_config(out_dir + "/config.json", config);
+    folder.write_config(config);
   }
 
-  FromCtSummary summary;
-  summary.width = W, summary.height = H, summary.slices = N;
-  summary.ct_width = g.Wct, summary.ct_height = g.Hct, summary.first_ct_slice = first;
-  summary.jump_slice = jump_slice;
-  summary.body_fraction = body_fraction;
-  summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  return summary;
+  const CtVolume& ct_;
+  const FromCtOptions& options_;
+  const int every_;  // ct_: the CT interpolated along z when > 1
+  int n_ = 0, first_ = 0, margin_ = 0, threads_ = 1;
+  Geometry g_;
+  std::unique_ptr<CtModel> model_;
+  // Steps 1–3: per slice the model, its components above the threshold and the body component.
+  std::vector<SliceModel> slices_;
+  std::vector<cv::Mat> comp_;
+  std::vector<int> comp_count_;
+  std::vector<int> offset_;
+  UnionFind uf_;
+  int body_root_ = 0;
+  double body_fraction_ = 0;
+  int bx0_ = 0, bx1_ = -1, by0_ = 0, by1_ = -1;  // the body's bounding box (set in step 3)
+  // Step 4: the true transforms.
+  std::vector<SliceTruth> truth_;
+  double cam_rot_ = 0, cam_dx_ = 0, cam_dy_ = 0;
+  int jump_slice_ = -1;
+};
+
+FromCtSummary make_from_ct(const std::string& out_dir, const CtVolume& ct,
+                           const FromCtOptions& options) {
+  return FromCtGenerator(ct, options).run(out_dir);
 }
 
 }  // namespace

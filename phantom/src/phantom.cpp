@@ -7,10 +7,12 @@
 #include <filesystem>
 #include <mutex>
 #include <regex>
+#include <utility>
 
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 
+#include "phantom_folder.h"
 #include "phantom_model.h"
 #include "truth_json.h"
 #include "vispack/common/atomic_file.h"
@@ -80,8 +82,8 @@ double reflect(double v, double limit) {
   return std::clamp(v, -limit, limit);
 }
 
-Plan make_plan(const PhantomOptions& options) {
-  Plan plan;
+// The preset with the options applied (CT scale), the options checked, and the anatomy.
+void plan_preset(const PhantomOptions& options, Plan& plan) {
   plan.preset = phantom_preset(options.preset);
   if (options.ct_scale < 0 || (options.ct_scale > 0 && options.ct_scale < 0.25) ||
       options.ct_scale > 16)
@@ -113,6 +115,12 @@ Plan make_plan(const PhantomOptions& options) {
       plan.anatomy.table_px = 2.5 * p.ct_pixel_mm / p.pixel_mm;
     }
   }
+}
+
+// The slice count (checked, with the truth volumes' memory), the file digits and where the
+// jump and the defects go.
+void plan_slices(const PhantomOptions& options, Plan& plan) {
+  const PhantomPreset& p = plan.preset;
   plan.slices = options.slices > 0 ? options.slices : p.slices;
   if (options.slices < 0 || plan.slices < 2 || plan.slices > 100000) {
     throw UsageError(cat("--slices ", options.slices, ": must be between 2 and 100000"));
@@ -138,40 +146,80 @@ Plan make_plan(const PhantomOptions& options) {
     if (plan.duplicate - 1 == plan.black) ++plan.duplicate;
     if (plan.duplicate >= n) throw UsageError("too few slices for the defects");
   }
+}
 
-  const bool tiny = p.height < 128;
-  double jump_lo = tiny ? 7.0 : 10.0, jump_hi = tiny ? 9.0 : 15.0;
-  if (options.jump_px_min > 0 || options.jump_px_max > 0) {
-    if (!(options.jump_px_min > 0 && options.jump_px_min <= options.jump_px_max &&
-          options.jump_px_max <= 100)) {
-      throw UsageError(cat("--jump-px ", options.jump_px_min, ":", options.jump_px_max,
-                           ": needs 0 < MIN <= MAX <= 100 px"));
+// The drift models other than the walk (PhantomOptions::DriftModel) change the walk's steps. They
+// draw from their own generator, so the gains and the jump are the same whatever the model (and
+// the walk's folder is byte-identical to one made before the models existed).
+class DriftSteps {
+ public:
+  DriftSteps(const PhantomOptions& options, int height, int slices)
+      : model_(options.drift_model),
+        heavy_rng_(options.seed * 0x2545f4914f6cdd1dull + 31),
+        bow_px_(std::max(1.0, 0.02 * height)),
+        slices_(slices) {}
+
+  // Slice k's steps (px, px, degrees) as the walk drew them, changed by the model.
+  void apply(int k, double drift, double& step_x, double& step_y, double& step_r) {
+    using Model = PhantomOptions::DriftModel;
+    if (model_ == Model::kHeavy) {
+      step_x = drift * t2(kDriftPx), step_y = drift * t2(kDriftPx), step_r = drift * t2(kDriftDeg);
+    } else if (model_ == Model::kRotation) {
+      step_r += drift * kSystematicDegPerSlice;
+    } else if (model_ == Model::kBowed && k > 0) {
+      step_x += drift * (bow(k) - bow(k - 1));
+      step_y += drift * (bow(k) - bow(k - 1));
     }
-    jump_lo = options.jump_px_min, jump_hi = options.jump_px_max;
   }
+
+ private:
+  // Student's t with 2 degrees of freedom, capped at 15 σ: a normal over sqrt(chi²₂ / 2) =
+  // sqrt(−ln U).
+  double t2(double sigma) {
+    const double u = std::max(heavy_rng_.uniform(), 1e-300);
+    return std::clamp(heavy_rng_.normal(1.0) / std::sqrt(-std::log(u)), -15.0, 15.0) * sigma;
+  }
+  double bow(int k) const { return bow_px_ * std::sin(kPi * k / std::max(1, slices_ - 1)); }
+
+  PhantomOptions::DriftModel model_;
+  Random heavy_rng_;
+  double bow_px_;
+  int slices_;
+};
+
+// The block jump's magnitude range, px: --jump-px, else 7..9 on frames under 128 px high, 10..15.
+std::pair<double, double> jump_range(const PhantomOptions& options, bool tiny) {
+  if (options.jump_px_min <= 0 && options.jump_px_max <= 0)
+    return tiny ? std::pair{7.0, 9.0} : std::pair{10.0, 15.0};
+  if (!(options.jump_px_min > 0 && options.jump_px_min <= options.jump_px_max &&
+        options.jump_px_max <= 100)) {
+    throw UsageError(cat("--jump-px ", options.jump_px_min, ":", options.jump_px_max,
+                         ": needs 0 < MIN <= MAX <= 100 px"));
+  }
+  return {options.jump_px_min, options.jump_px_max};
+}
+
+// The colour camera's constant offset against the CT: about 0.05·H px (3..12) and 1..2°
+// (tiny: 0.6..1.2°), never more than 40 % of the room the drift has.
+void plan_camera_offset(const PhantomOptions& options, const Limits& lim, bool tiny, Plan& plan) {
+  const PhantomPreset& p = plan.preset;
+  Random cam(options.seed * 0xd1b54a32d192ed03ull + 29);
+  const double mag = std::min(std::clamp(0.05 * p.height, 3.0, 12.0), 0.4 * std::min(lim.x, lim.y));
+  const double angle = cam.uniform(0, 2 * kPi);
+  plan.cam_rot = cam.uniform(1.0, 2.0) * (tiny ? 0.6 : 1.0) * (cam.uniform() < 0.5 ? -1 : 1);
+  plan.cam_dx = mag * std::cos(angle);
+  plan.cam_dy = mag * std::sin(angle);
+}
+
+// Each slice's true transform: the camera offset, a random walk reflected at the limits, one
+// block jump (turned until it fits), the black and the duplicated slice.
+void plan_drift(const PhantomOptions& options, const Limits& lim, bool tiny, Plan& plan) {
+  const PhantomPreset& p = plan.preset;
+  const int n = plan.slices;
+  const auto [jump_lo, jump_hi] = jump_range(options, tiny);
   const double rot_lo = tiny ? 1.5 : 2.0, rot_hi = tiny ? 2.5 : 4.0;
-  const Limits lim = limits_for(p, plan.anatomy, tiny ? 3.5 : 6.0);
-
-  // The colour camera's constant offset against the CT: about 0.05·H px (3..12) and 1..2°
-  // (tiny: 0.6..1.2°), never more than 40 % of the room the drift has.
-  {
-    Random cam(options.seed * 0xd1b54a32d192ed03ull + 29);
-    const double mag =
-        std::min(std::clamp(0.05 * p.height, 3.0, 12.0), 0.4 * std::min(lim.x, lim.y));
-    const double angle = cam.uniform(0, 2 * kPi);
-    plan.cam_rot = cam.uniform(1.0, 2.0) * (tiny ? 0.6 : 1.0) * (cam.uniform() < 0.5 ? -1 : 1);
-    plan.cam_dx = mag * std::cos(angle);
-    plan.cam_dy = mag * std::sin(angle);
-  }
-
   Random rng(options.seed * 0x9e3779b97f4a7c15ull + 17);
-  // The models other than the walk draw from their own generator, so the gains and the jump are
-  // the same whatever the model (and the walk's folder byte-identical to before the models).
-  using Model = PhantomOptions::DriftModel;
-  const Model model = options.drift_model;
-  Random heavy_rng(options.seed * 0x2545f4914f6cdd1dull + 31);
-  const double bow_px = std::max(1.0, 0.02 * p.height);
-  auto bow = [&](int k) { return bow_px * std::sin(kPi * k / std::max(1, n - 1)); };
+  DriftSteps model_steps(options, p.height, n);
   plan.truth.resize(n);
   for (int k = 0; k < n; ++k) {
     SliceTruth& s = plan.truth[k];
@@ -180,19 +228,7 @@ Plan make_plan(const PhantomOptions& options) {
     const double drift = options.drift ? 1.0 : 0.0;  // the draws happen either way
     double step_x = drift * rng.normal(kDriftPx), step_y = drift * rng.normal(kDriftPx);
     double step_r = drift * rng.normal(kDriftDeg);
-    if (model == Model::kHeavy) {
-      // Student's t with 2 degrees of freedom: a normal over sqrt(chi²₂ / 2) = sqrt(−ln U).
-      auto t2 = [&](double sigma) {
-        const double u = std::max(heavy_rng.uniform(), 1e-300);
-        return std::clamp(heavy_rng.normal(1.0) / std::sqrt(-std::log(u)), -15.0, 15.0) * sigma;
-      };
-      step_x = drift * t2(kDriftPx), step_y = drift * t2(kDriftPx), step_r = drift * t2(kDriftDeg);
-    } else if (model == Model::kRotation) {
-      step_r += drift * kSystematicDegPerSlice;
-    } else if (model == Model::kBowed && k > 0) {
-      step_x += drift * (bow(k) - bow(k - 1));
-      step_y += drift * (bow(k) - bow(k - 1));
-    }
+    model_steps.apply(k, drift, step_x, step_y, step_r);
     const double jump_m = rng.uniform(jump_lo, jump_hi), jump_a = rng.uniform(0, 2 * kPi);
     const double jump_r = rng.uniform(rot_lo, rot_hi) * (rng.uniform() < 0.5 ? -1 : 1);
     if (k == 0) {
@@ -234,23 +270,23 @@ Plan make_plan(const PhantomOptions& options) {
     }
     s.black = k == plan.black;
   }
+}
 
+Plan make_plan(const PhantomOptions& options) {
+  Plan plan;
+  plan_preset(options, plan);
+  plan_slices(options, plan);
+  const PhantomPreset& p = plan.preset;
+  const bool tiny = p.height < 128;
+  const Limits lim = limits_for(p, plan.anatomy, tiny ? 3.5 : 6.0);
+  plan_camera_offset(options, lim, tiny, plan);
+  plan_drift(options, lim, tiny, plan);
   // CT → output grid: defined, not drawn (output_frame identity by default).
   plan.ct_scale = p.ct_pixel_mm / p.pixel_mm;
   plan.ct_rot = plan.output_frame.rotation_deg;
   plan.ct_dx = plan.output_frame.dx_px;
   plan.ct_dy = plan.output_frame.dy_px;
   return plan;
-}
-
-std::string numbered(const std::string& stem, int number, int digits, const std::string& ext) {
-  char buffer[32];
-  std::snprintf(buffer, sizeof buffer, "%0*d", digits, number);
-  return stem + "_" + buffer + ext;
-}
-
-std::uint8_t to_u8(double v) {
-  return static_cast<std::uint8_t>(std::clamp(std::lround(v), 0L, 255L));
 }
 
 // Removes files of an earlier run (same naming scheme) that this run did not write.
@@ -291,7 +327,8 @@ PhantomPreset phantom_preset(const std::string& name) {
     p.width = 2048, p.height = 1216, p.slices = 16, p.pixel_mm = 0.33, p.ct_size = 1120,
     p.ct_pixel_mm = 0.66, p.defects = false, p.fiducials = false, p.varying_anatomy = true;
   } else if (name == "male") {
-    // A whole body with arms, legs and toes at the real slice size (issue #30).
+    // A whole body with arms, legs and toes at the real slice size (docs/ARCHITECTURE.md, 'The body
+    // mask: every part is body').
     p.width = 2048, p.height = 1216, p.slices = 200, p.pixel_mm = 0.33, p.ct_size = 512,
     p.ct_pixel_mm = 1.4, p.defects = false, p.fiducials = false, p.varying_anatomy = true,
     p.limbs = true;
@@ -317,235 +354,227 @@ PhantomOptions::DriftModel parse_drift_model(const std::string& name) {
   throw UsageError(cat("--drift '", name, "': not walk, heavy, rotation or bowed"));
 }
 
+namespace {
+
+// What rendering and writing one preset phantom needs: the plan, the options, the model and the
+// folder being written. Slices may be rendered from many threads at once (each writes its own
+// planes and files).
+struct PresetRun {
+  const Plan& plan;
+  const PhantomOptions& options;
+  const Model& model;
+  const GaussianTable& gaussian;
+  PhantomFolder& folder;
+  std::string rgb_ext, seg_ext;
+  RawLayout raw;
+};
+
+// Slice k of the truth volumes on the output grid: no drift, no noise, gain 1.
+void render_truth(const PresetRun& r, int k, const SliceParams& params) {
+  const int W = r.plan.preset.width, H = r.plan.preset.height;
+  Sample sample;
+  const TruthPlanes truth = r.folder.truth_planes(k);
+  for (int y = 0; y < H; ++y) {
+    for (int x = 0; x < W; ++x) {
+      r.model.eval(params, x, y, 1.0, true, true, sample);
+      truth.set(std::size_t(y) * W + x, sample.rgb, sample.hu, -1024L, 3071L, sample.body,
+                sample.label);
+    }
+  }
+}
+
+// Observed RGB and segmentation of slice k, written: the model sampled at q(p) for each observed
+// pixel p, q = c + R(−θ)(p − c − d) (the inverse of p = c + R(θ)(q − c) + d). The IDs the seg
+// slice shows go to truth/seg_labels, pixel for pixel on its own (drifted) grid; 0 on a black
+// slice.
+void render_observed(const PresetRun& r, int k, const SliceParams& params) {
+  const SliceTruth& st = r.plan.truth[k];
+  const int W = r.plan.preset.width, H = r.plan.preset.height;
+  const double cx = (W - 1) * 0.5, cy = (H - 1) * 0.5;
+  cv::Mat rgb(H, W, CV_8UC3, cv::Scalar::all(0));
+  cv::Mat seg(H, W, CV_8UC3, cv::Scalar::all(0));
+  auto* t_seg = r.folder.truth_seg_labels(k);
+  if (!st.black) {
+    Sample sample;
+    const SliceParams& src = st.source == k ? params : r.model.slice(st.source);
+    const double th = st.rot * kPi / 180.0, cs = std::cos(th), sn = std::sin(th);
+    Random noise(mix64(r.options.seed ^ (0x5851f42d4c957f2dull * std::uint64_t(st.source + 1))));
+    for (int y = 0; y < H; ++y) {
+      auto* row = rgb.ptr<std::uint8_t>(y);
+      auto* srow = seg.ptr<std::uint8_t>(y);
+      for (int x = 0; x < W; ++x) {
+        const double px = x - cx - st.dx, py = y - cy - st.dy;
+        const double qx = cx + cs * px + sn * py, qy = cy - sn * px + cs * py;
+        r.model.eval(src, qx, qy, 1.0, true, false, sample);
+        float gauss[4];
+        noise.normal4(r.gaussian, gauss);
+        for (int c = 0; c < 3; ++c) {
+          row[x * 3 + c] = to_u8(sample.rgb[c] * st.gain + kNoiseSigma * gauss[c]);
+        }
+        t_seg[std::size_t(y) * W + x] = sample.label;
+        const auto& colour = label_info(sample.label).palette;
+        for (int c = 0; c < 3; ++c)
+          srow[x * 3 + c] = static_cast<std::uint8_t>(colour[c]);
+      }
+    }
+  }
+  if (r.options.rgb_raw) {
+    write_raw_slice(r.folder.dir() + "/rgb/" + r.folder.rgb_name(k, r.rgb_ext), rgb, r.raw);
+  } else {
+    r.folder.write_rgb(k, r.rgb_ext, rgb);
+  }
+  if (k % r.options.seg_every == 0) r.folder.write_seg(k / r.options.seg_every, r.seg_ext, seg, 90);
+}
+
+// CT slice k: its own (larger) pixels, no drift, HU + 1024 stored, 16-bit; at every
+// ct_every-th colour slice only.
+void render_ct(const PresetRun& r, int k, const SliceParams& params) {
+  if (k % r.options.ct_every != 0) return;
+  const int W = r.plan.preset.width, H = r.plan.preset.height, C = r.plan.preset.ct_size;
+  const double cx = (W - 1) * 0.5, cy = (H - 1) * 0.5, cct = (C - 1) * 0.5;
+  cv::Mat ct(C, C, CV_16UC1);
+  Sample sample;
+  const double th = r.plan.ct_rot * kPi / 180.0, cs = std::cos(th), sn = std::sin(th);
+  const double s = r.plan.ct_scale;
+  Random noise(mix64(r.options.seed ^ (0x2545f4914f6cdd1dull * std::uint64_t(k + 1))));
+  for (int v = 0; v < C; ++v) {
+    auto* row = ct.ptr<std::uint16_t>(v);
+    for (int u = 0; u < C; ++u) {
+      const double du = u - cct, dv = v - cct;
+      const double qx = cx + s * (cs * du - sn * dv) + r.plan.ct_dx;
+      const double qy = cy + s * (sn * du + cs * dv) + r.plan.ct_dy;
+      r.model.eval(params, qx, qy, s, false, true, sample);
+      float gauss[4];
+      noise.normal4(r.gaussian, gauss);
+      const double hu = sample.hu + kCtNoiseHu * gauss[0];
+      row[u] = static_cast<std::uint16_t>(std::clamp(std::lround(hu + 1024.0), 0L, 4095L));
+    }
+  }
+  r.folder.write_ct(k / r.options.ct_every, ct);
+}
+
+// truth/transforms.json (docs/ARCHITECTURE.md "Slice transforms"), by the phantom's own writer,
+// plus its extras: per-slice "gain", the camera offset, noise levels, preset and seed.
+void write_preset_transforms(const PresetRun& r) {
+  const Plan& plan = r.plan;
+  const int H = plan.preset.height;
+  TruthTransforms tt;
+  tt.width = plan.preset.width, tt.height = H, tt.frame = "ct", tt.has_ct = true;
+  tt.ct_scale = plan.ct_scale, tt.ct_rotation_deg = plan.ct_rot;
+  tt.ct_dx_px = plan.ct_dx, tt.ct_dy_px = plan.ct_dy;
+  for (int k = 0; k < plan.slices; ++k) {
+    const SliceTruth& st = plan.truth[k];
+    TruthSlice s;
+    s.index = k, s.number = k, s.file = r.folder.rgb_name(k, r.rgb_ext);
+    s.dx_px = st.dx, s.dy_px = st.dy, s.rotation_deg = st.rot;
+    s.jump = st.jump, s.black = st.black, s.duplicate_of = st.duplicate_of, s.gain = st.gain;
+    tt.slices.push_back(s);
+  }
+  tt.extra["camera_offset"] = {
+      {"rotation_deg", plan.cam_rot}, {"dx_px", plan.cam_dx}, {"dy_px", plan.cam_dy}};
+  tt.extra["noise_sigma"] = kNoiseSigma;
+  tt.extra["ct_noise_hu"] = kCtNoiseHu;
+  tt.extra["preset"] = plan.preset.name;
+  if (plan.anatomy.limbs) {
+    // The CT's table on the output grid (rows, y down; top edge, bottom edge), for scoring
+    // holder pixels in a mask.
+    const double top = (H - 1) * 0.5 + r.model.slice(0).table_top * H * 0.5;
+    tt.extra["table_rows_px"] = {top, top + plan.anatomy.table_px};
+  }
+  tt.extra["seed"] = r.options.seed;
+  tt.extra["fiducials"] = plan.anatomy.fiducials;
+  tt.extra["drift"] = r.options.drift;
+  r.folder.write_truth_transforms(tt);
+}
+
+// A ready config, written through the pipeline's own config writer (one writer of the schema);
+// with CT the output frame is defined by the CT (register.output_frame).
+void write_preset_config(const PresetRun& r) {
+  const PhantomPreset& p = r.plan.preset;
+  const PhantomOptions& options = r.options;
+  pipeline::Config config = r.folder.base_config("phantom-" + p.name, r.rgb_ext,
+                                                 {p.ct_pixel_mm, p.ct_pixel_mm}, r.seg_ext);
+  if (options.rgb_raw) config.rgb.raw = r.raw;
+  if (options.ct_every > 1) config.ct->slice_spacing_mm = options.ct_every * p.slice_mm;
+  pipeline::SegSource& seg = *config.seg;
+  seg.mode = "colour";
+  seg.tolerance = options.seg_jpeg ? 48 : 24;
+  seg.strict = false;
+  if (options.seg_every > 1) seg.slice_spacing_mm = options.seg_every * p.slice_mm;
+  config.registration.method = "phase+ecc";
+  config.registration.ecc_scale = 0.5;
+  config.registration.jump_px = 6.0;
+  config.registration.output_frame = r.plan.output_frame;
+  config.mask.hu_threshold = -400;
+  config.mask.opening_px = 1;
+  config.mask.refine_gel = true;
+  r.folder.write_config(config);
+}
+
+// Leftovers of an earlier run with another preset, slice count or format.
+void remove_leftovers(const PresetRun& r) {
+  const PhantomOptions& options = r.options;
+  const int digits = r.plan.digits;
+  std::vector<std::string> keep_rgb, keep_seg, keep_ct;
+  for (int k = 0; k < r.plan.slices; ++k) {
+    keep_rgb.push_back(numbered("rgb", k, digits, r.rgb_ext));
+    if (k % options.seg_every == 0)
+      keep_seg.push_back(numbered("seg", k / options.seg_every, digits, r.seg_ext));
+    if (k % options.ct_every == 0)
+      keep_ct.push_back(numbered("ct", k / options.ct_every, digits, ".png"));
+  }
+  const std::string& out_dir = r.folder.dir();
+  remove_stale(out_dir + "/rgb", std::regex("rgb_[0-9]+\\.(png|raw)"), keep_rgb);
+  remove_stale(out_dir + "/seg", std::regex("seg_[0-9]+\\.(png|jpg)"), keep_seg);
+  remove_stale(out_dir + "/ct", std::regex("ct_[0-9]+\\.png"), keep_ct);
+}
+
+}  // namespace
+
 PhantomSummary make_phantom(const std::string& out_dir, const PhantomOptions& options) {
   const auto start = std::chrono::steady_clock::now();
   const Plan plan = make_plan(options);
   const PhantomPreset& p = plan.preset;
-  const int W = p.width, H = p.height, N = plan.slices, C = p.ct_size;
+  const int W = p.width, H = p.height, N = plan.slices;
   const Model model(W, H, N, options.seed, plan.anatomy);
   const GaussianTable gaussian;
+  PhantomFolder folder(out_dir, W, H, N, {p.pixel_mm, p.pixel_mm, p.slice_mm}, plan.digits);
+  PresetRun run{plan,
+                options,
+                model,
+                gaussian,
+                folder,
+                options.rgb_raw ? ".raw" : ".png",
+                options.seg_jpeg ? ".jpg" : ".png",
+                RawLayout{}};
+  run.raw.width = W, run.raw.height = H, run.raw.channels = 3, run.raw.planar = true;
+  run.raw.bits = 8;
 
-  const std::string rgb_dir = out_dir + "/rgb", ct_dir = out_dir + "/ct",
-                    seg_dir = out_dir + "/seg";
-  const std::string truth_dir = out_dir + "/truth";
-  for (const auto& d : {rgb_dir, ct_dir, seg_dir, truth_dir})
-    make_directories(d);
-
-  const std::string rgb_ext = options.rgb_raw ? ".raw" : ".png";
-  const std::string seg_ext = options.seg_jpeg ? ".jpg" : ".png";
-  RawLayout raw;
-  raw.width = W, raw.height = H, raw.channels = 3, raw.planar = true, raw.bits = 8;
-
-  NrrdVolume truth_rgb, truth_ct, truth_mask, truth_labels, truth_seg_labels;
-  const std::array<double, 3> spacing{p.pixel_mm, p.pixel_mm, p.slice_mm};
-  auto init = [&](NrrdVolume& v, NrrdType type, int components) {
-    v.type = type;
-    v.components = components;
-    v.dims = {W, H, N};
-    v.spacing_mm = spacing;
-    v.data.assign(v.byte_size(), 0);
-  };
-  init(truth_rgb, NrrdType::kUint8, 3);
-  init(truth_ct, NrrdType::kInt16, 1);
-  init(truth_mask, NrrdType::kUint8, 1);
-  init(truth_labels, NrrdType::kUint16, 1);
-  init(truth_seg_labels, NrrdType::kUint16, 1);
-
-  const double cx = (W - 1) * 0.5, cy = (H - 1) * 0.5, cct = (C - 1) * 0.5;
   Progress progress("vispack-phantom", N, "slices", options.quiet);
   parallel_for(N, resolve_threads(options.threads), [&](std::int64_t kk) {
     const int k = static_cast<int>(kk);
-    const SliceTruth& st = plan.truth[k];
     const SliceParams params = model.slice(k);
-    Sample sample;
-    // Truth on the output grid: no drift, no noise, gain 1.
-    const std::size_t plane = std::size_t(W) * H;
-    auto* t_rgb = truth_rgb.as<std::uint8_t>() + plane * 3 * k;
-    auto* t_ct = truth_ct.as<std::int16_t>() + plane * k;
-    auto* t_mask = truth_mask.as<std::uint8_t>() + plane * k;
-    auto* t_lab = truth_labels.as<std::uint16_t>() + plane * k;
-    for (int y = 0; y < H; ++y) {
-      for (int x = 0; x < W; ++x) {
-        model.eval(params, x, y, 1.0, true, true, sample);
-        const std::size_t i = std::size_t(y) * W + x;
-        for (int c = 0; c < 3; ++c)
-          t_rgb[i * 3 + c] = to_u8(sample.rgb[c]);
-        t_ct[i] = static_cast<std::int16_t>(std::clamp(std::lround(sample.hu), -1024L, 3071L));
-        t_mask[i] = sample.body ? 1 : 0;
-        t_lab[i] = sample.label;
-      }
-    }
-
-    // Observed RGB and segmentation: the model sampled at q(p) for each observed pixel p,
-    // q = c + R(−θ)(p − c − d) (the inverse of p = c + R(θ)(q − c) + d).
-    cv::Mat rgb(H, W, CV_8UC3, cv::Scalar::all(0));
-    cv::Mat seg(H, W, CV_8UC3, cv::Scalar::all(0));
-    // The IDs the seg slice shows, pixel for pixel on its own (drifted) grid; 0 on a black slice.
-    auto* t_seg = truth_seg_labels.as<std::uint16_t>() + plane * k;
-    if (!st.black) {
-      const SliceParams& src = st.source == k ? params : model.slice(st.source);
-      const double th = st.rot * kPi / 180.0, cs = std::cos(th), sn = std::sin(th);
-      Random noise(mix64(options.seed ^ (0x5851f42d4c957f2dull * std::uint64_t(st.source + 1))));
-      for (int y = 0; y < H; ++y) {
-        auto* row = rgb.ptr<std::uint8_t>(y);
-        auto* srow = seg.ptr<std::uint8_t>(y);
-        for (int x = 0; x < W; ++x) {
-          const double px = x - cx - st.dx, py = y - cy - st.dy;
-          const double qx = cx + cs * px + sn * py, qy = cy - sn * px + cs * py;
-          model.eval(src, qx, qy, 1.0, true, false, sample);
-          float gauss[4];
-          noise.normal4(gaussian, gauss);
-          for (int c = 0; c < 3; ++c) {
-            row[x * 3 + c] = to_u8(sample.rgb[c] * st.gain + kNoiseSigma * gauss[c]);
-          }
-          t_seg[std::size_t(y) * W + x] = sample.label;
-          const auto& colour = label_info(sample.label).palette;
-          for (int c = 0; c < 3; ++c)
-            srow[x * 3 + c] = static_cast<std::uint8_t>(colour[c]);
-        }
-      }
-    }
-    const std::string rgb_path = rgb_dir + "/" + numbered("rgb", k, plan.digits, rgb_ext);
-    if (options.rgb_raw) {
-      write_raw_slice(rgb_path, rgb, raw);
-    } else {
-      write_image(rgb_path, rgb);
-    }
-    if (k % options.seg_every == 0)
-      write_image(seg_dir + "/" + numbered("seg", k / options.seg_every, plan.digits, seg_ext), seg,
-                  90);
-
-    // CT: its own (larger) pixels, no drift, HU + 1024 stored, 16-bit; at every ct_every-th
-    // colour slice only.
-    cv::Mat ct(C, C, CV_16UC1);
-    if (k % options.ct_every == 0) {
-      const double th = plan.ct_rot * kPi / 180.0, cs = std::cos(th), sn = std::sin(th);
-      const double s = plan.ct_scale;
-      Random noise(mix64(options.seed ^ (0x2545f4914f6cdd1dull * std::uint64_t(k + 1))));
-      for (int v = 0; v < C; ++v) {
-        auto* row = ct.ptr<std::uint16_t>(v);
-        for (int u = 0; u < C; ++u) {
-          const double du = u - cct, dv = v - cct;
-          const double qx = cx + s * (cs * du - sn * dv) + plan.ct_dx;
-          const double qy = cy + s * (sn * du + cs * dv) + plan.ct_dy;
-          model.eval(params, qx, qy, s, false, true, sample);
-          float gauss[4];
-          noise.normal4(gaussian, gauss);
-          const double hu = sample.hu + kCtNoiseHu * gauss[0];
-          row[u] = static_cast<std::uint16_t>(std::clamp(std::lround(hu + 1024.0), 0L, 4095L));
-        }
-      }
-      write_image(ct_dir + "/" + numbered("ct", k / options.ct_every, plan.digits, ".png"), ct);
-    }
+    render_truth(run, k, params);
+    render_observed(run, k, params);
+    render_ct(run, k, params);
     progress.advance();
   });
   progress.finish();
 
-  write_nrrd(truth_dir + "/rgb.nrrd", truth_rgb);
-  write_nrrd(truth_dir + "/ct.nrrd", truth_ct);
-  write_nrrd(truth_dir + "/mask.nrrd", truth_mask);
-  write_nrrd(truth_dir + "/labels.nrrd", truth_labels);
-  write_nrrd(truth_dir + "/seg_labels.nrrd", truth_seg_labels);
-
-  // transforms.json (docs/ARCHITECTURE.md "Slice transforms"), by the phantom's own writer, plus
-  // its extras: per-slice "gain", the camera offset, noise levels, preset and seed.
-  {
-    TruthTransforms tt;
-    tt.width = W, tt.height = H, tt.frame = "ct", tt.has_ct = true;
-    tt.ct_scale = plan.ct_scale, tt.ct_rotation_deg = plan.ct_rot;
-    tt.ct_dx_px = plan.ct_dx, tt.ct_dy_px = plan.ct_dy;
-    for (int k = 0; k < N; ++k) {
-      const SliceTruth& st = plan.truth[k];
-      TruthSlice s;
-      s.index = k, s.number = k, s.file = numbered("rgb", k, plan.digits, rgb_ext);
-      s.dx_px = st.dx, s.dy_px = st.dy, s.rotation_deg = st.rot;
-      s.jump = st.jump, s.black = st.black, s.duplicate_of = st.duplicate_of, s.gain = st.gain;
-      tt.slices.push_back(s);
-    }
-    tt.extra["camera_offset"] = {
-        {"rotation_deg", plan.cam_rot}, {"dx_px", plan.cam_dx}, {"dy_px", plan.cam_dy}};
-    tt.extra["noise_sigma"] = kNoiseSigma;
-    tt.extra["ct_noise_hu"] = kCtNoiseHu;
-    tt.extra["preset"] = p.name;
-    if (plan.anatomy.limbs) {
-      // The CT's table on the output grid (rows, y down; top edge, bottom edge), for scoring
-      // holder pixels in a mask.
-      const double top = (H - 1) * 0.5 + model.slice(0).table_top * H * 0.5;
-      tt.extra["table_rows_px"] = {top, top + plan.anatomy.table_px};
-    }
-    tt.extra["seed"] = options.seed;
-    tt.extra["fiducials"] = plan.anatomy.fiducials;
-    tt.extra["drift"] = options.drift;
-    write_truth_transforms(truth_dir + "/transforms.json", tt);
-  }
-
-  ojson palette;
-  palette["labels"] = ojson::array();
-  for (int id = 1; id < kLabelCount; ++id) {
-    const LabelInfo& info = label_info(id);
-    palette["labels"].push_back({{"id", id}, {"name", info.name}, {"colour", info.palette}});
-  }
-  write_file_atomic(out_dir + "/palette.json", palette.dump(2) + "\n");
-
-  // A ready config, written through the pipeline's own config writer (one writer of the
-  // schema); with CT the output frame is defined by the CT (register.output_frame).
-  {
-    const std::string base = fs::absolute(out_dir).lexically_normal().string();
-    pipeline::Config config;
-    config.path = base + "/config.json";
-    config.name = "phantom-" + p.name;
-    config.work_dir = base + "/work";
-    config.output = base + "/out/volume.vpk";
-    config.vdb_output = base + "/out/volume.vdb";
-    config.spacing_mm = {p.pixel_mm, p.pixel_mm, p.slice_mm};
-    config.rgb.dir = base + "/rgb";
-    config.rgb.pattern = "rgb_{n}" + rgb_ext;
-    if (options.rgb_raw) config.rgb.raw = raw;
-    pipeline::CtSource ct;
-    ct.dir = base + "/ct";
-    ct.pattern = "ct_{n}.png";
-    ct.pixel_spacing_mm = {p.ct_pixel_mm, p.ct_pixel_mm};
-    ct.slope = 1.0;
-    ct.intercept = -1024.0;
-    if (options.ct_every > 1) ct.slice_spacing_mm = options.ct_every * p.slice_mm;
-    config.ct = ct;
-    pipeline::SegSource seg;
-    seg.dir = base + "/seg";
-    seg.pattern = "seg_{n}" + seg_ext;
-    seg.palette = base + "/palette.json";
-    seg.mode = "colour";
-    seg.tolerance = options.seg_jpeg ? 48 : 24;
-    seg.strict = false;
-    if (options.seg_every > 1) seg.slice_spacing_mm = options.seg_every * p.slice_mm;
-    config.seg = seg;
-    config.registration.method = "phase+ecc";
-    config.registration.ecc_scale = 0.5;
-    config.registration.jump_px = 6.0;
-    config.registration.output_frame = plan.output_frame;
-    config.mask.hu_threshold = -400;
-    config.mask.opening_px = 1;
-    config.mask.refine_gel = true;
-    pipeline::write_config(out_dir + "/config.json", config);
-  }
-
-  // Leftovers of an earlier run with another preset, slice count or format.
-  std::vector<std::string> keep_rgb, keep_seg, keep_ct;
-  for (int k = 0; k < N; ++k) {
-    keep_rgb.push_back(numbered("rgb", k, plan.digits, rgb_ext));
-    if (k % options.seg_every == 0)
-      keep_seg.push_back(numbered("seg", k / options.seg_every, plan.digits, seg_ext));
-    if (k % options.ct_every == 0)
-      keep_ct.push_back(numbered("ct", k / options.ct_every, plan.digits, ".png"));
-  }
-  remove_stale(rgb_dir, std::regex("rgb_[0-9]+\\.(png|raw)"), keep_rgb);
-  remove_stale(seg_dir, std::regex("seg_[0-9]+\\.(png|jpg)"), keep_seg);
-  remove_stale(ct_dir, std::regex("ct_[0-9]+\\.png"), keep_ct);
+  folder.write_truth_volumes();
+  write_preset_transforms(run);
+  std::vector<PaletteEntry> palette;
+  for (int id = 1; id < kLabelCount; ++id)
+    palette.push_back({id, label_info(id).name, label_info(id).palette});
+  folder.write_palette(palette);
+  write_preset_config(run);
+  remove_leftovers(run);
 
   PhantomSummary summary;
   summary.width = W;
   summary.height = H;
   summary.slices = N;
-  summary.ct_size = C;
+  summary.ct_size = p.ct_size;
   summary.jump_slice = plan.jump;
   summary.black_slice = plan.black;
   summary.duplicate_slice = plan.duplicate;

@@ -391,48 +391,129 @@ SliceParams Model::slice(int k) const {
   return s;
 }
 
-void Model::eval(const SliceParams& s, double x, double y, double edge_px, bool want_rgb,
-                 bool want_ct, Sample& out) const {
-  // Frame coordinates (fiducial tubes, CT holder) and body coordinates (centre at x0, y0).
-  const double Xf = (x - cx_) / half_, Yf = (y - cy_) / half_;
-  const double X = Xf - s.x0, Y = Yf - s.y0;
-  const double w = edge_px / half_;  // edge width, normalised units
-  // Interior shapes live in body-relative coordinates so they follow the outline's size.
-  const double Xr = s.a > 1e-6 ? X * kBodyA / s.a : kFar, Yr = s.b > 1e-6 ? Y * kBodyB / s.b : kFar;
-  // Interior shapes (organs, ribs) growing from or shrinking to nothing are left out while a
-  // semi-axis is under one output pixel: a sub-pixel speck would appear on one sampling grid and
-  // not on another (the truth grid vs a drifted slice), which no resampling can reproduce.
-  const double px_x = half_ * s.a / kBodyA, px_y = half_ * s.b / kBodyB;  // px per body unit
-  auto resolvable = [&](double a, double b) { return a * px_x >= 1.0 && b * px_y >= 1.0; };
+namespace {
 
-  // Texture: smooth brightness (4 octaves) and a slow second field.
-  float n = 0.f, m = 0.f;
-  if (want_rgb || want_ct) {
-    if (want_rgb) {
-      n = 0.5f * s.texture[0].at(x, y) + 0.28f * s.texture[1].at(x, y) +
-          0.14f * s.texture[2].at(x, y) + 0.08f * s.texture[3].at(x, y);
-      m = s.marbling.at(x, y);
-    } else {
-      n = s.texture[0].at(x, y);  // CT: the coarse octave only (its pixels are larger)
+// Where Model::eval samples: frame coordinates (Xf, Yf), body coordinates (X, Y; centre at the
+// body's x0, y0) and body-relative ones (Xr, Yr), the edge width w, the texture fields n and m,
+// what is wanted, and `resolvable` (a shape of semi-axes a, b is at least one output pixel).
+struct EvalPoint {
+  double Xf, Yf, X, Y, Xr, Yr, w;
+  float n, m;
+  bool want_rgb, want_ct;
+  double px_x, px_y;  // output pixels per body unit
+  bool resolvable(double a, double b) const { return a * px_x >= 1.0 && b * px_y >= 1.0; }
+};
+
+// A limb's nested layers (skin, fat, muscle, bone, as in the torso) mixed into `t` (zeroed by
+// the caller); `half`: pixels per normalised unit. Returns the label at the point.
+std::uint16_t limb_layers(const Limb& l, const EvalPoint& p, double half, Accum& t) {
+  const double X = p.X, Y = p.Y, w = p.w;
+  const float n = p.n, m = p.m;
+  const bool want_rgb = p.want_rgb, want_ct = p.want_ct;
+  auto resolved = [&](double a, double b) { return a * half >= 1.0 && b * half >= 1.0; };
+  t.mix(kTissues[kSkin], 1.f, n, m, want_rgb, want_ct);
+  std::uint16_t label = kSkin;
+  const double skin = 0.018, fat_t = 0.18 * std::min(l.a, l.b);
+  if (resolved(l.a - skin, l.b - skin)) {
+    const double fat = ellipse_sdf(X, Y, l.x, l.y, l.a - skin, l.b - skin, w);
+    if (fat < w) {
+      t.mix(kTissues[kFat], cover(fat, w), n, m, want_rgb, want_ct);
+      if (fat < 0) label = kFat;
+      const double ma = l.a - skin - fat_t, mb = l.b - skin - fat_t;
+      const double mus = resolved(ma, mb) ? ellipse_sdf(X, Y, l.x, l.y, ma, mb, w) : kFar;
+      if (mus < w) {
+        t.mix(kTissues[kMuscle], cover(mus, w), n, m, want_rgb, want_ct);
+        if (mus < 0) label = kMuscle;
+        const double r = l.bone * std::min(l.a, l.b);
+        const double bone =
+            l.bone > 0 && resolved(r, r) ? ellipse_sdf(X, Y, l.x, l.y, r, r, w) : kFar;
+        if (bone < w) {
+          t.mix(kTissues[kBone], cover(bone, w), n, m, want_rgb, want_ct);
+          if (bone < 0) label = kBone;
+        }
+      }
     }
   }
+  return label;
+}
 
-  const double body = lobed_sdf(X, Y, s.a, s.b, s.lobes.data());
-  const double notch = ellipse_sdf(Xr, Yr, -0.45, -0.50, 0.065, 0.17 * s.notch, w);
-  const double eff = std::max(body, -notch);  // body minus the gel-filled notch
-  // Anatomy::limbs: the nearest limb (arm, leg, foot, toe) and the outline of all parts.
-  double limb = kFar;
-  int nearest = -1;
-  for (int i = 0; i < s.limb_count; ++i) {
-    const Limb& l = s.limbs[std::size_t(i)];
-    const double d = ellipse_sdf(X, Y, l.x, l.y, l.a, l.b, w);
-    if (d < limb) limb = d, nearest = i;
+// The torso's nested layers from the outside in (skin, fat, muscle with marbling, the cavity
+// and its organs, the bones) mixed into `t` (zeroed by the caller). Returns the label.
+std::uint16_t torso_layers(const SliceParams& s, const EvalPoint& p, Accum& t) {
+  const double X = p.X, Y = p.Y, Xr = p.Xr, Yr = p.Yr, w = p.w;
+  const float n = p.n, m = p.m;
+  const bool want_rgb = p.want_rgb, want_ct = p.want_ct;
+  auto resolvable = [&](double a, double b) { return p.resolvable(a, b); };
+  // Nested layers from the outside in; each mixes its colour over what is outside it.
+  t.mix(kTissues[kSkin], 1.f, n, m, want_rgb, want_ct);
+  std::uint16_t label = kSkin;
+  const double ts = 0.035;
+  const double fat = lobed_sdf(X, Y, s.a - ts, s.b - ts, s.lobes.data());
+  if (fat < w) {
+    t.mix(kTissues[kFat], cover(fat, w), n, m, want_rgb, want_ct);
+    if (fat < 0) label = kFat;
+    const double mus = lobed_sdf(X, Y, s.a - ts - s.fat_x, s.b - ts - s.fat_y, s.lobes.data());
+    if (mus < w) {
+      // Muscle with fat marbling where the slow field is high.
+      float marbled[3];
+      const float mf = 0.55f * static_cast<float>(smoothstep(0.35, 0.75, m));
+      for (int i = 0; i < 3; ++i)
+        marbled[i] =
+            kTissues[kMuscle].rgb[i] + mf * (kTissues[kFat].rgb[i] - kTissues[kMuscle].rgb[i]);
+      t.mix(kTissues[kMuscle], cover(mus, w), n, m, want_rgb, want_ct, marbled);
+      if (mus < 0) label = kMuscle;
+      const double cav = ellipse_sdf(Xr, Yr, 0, 0, 0.645, 0.355, w);
+      if (cav < w) {
+        t.mix(kTissues[kConnective], cover(cav, w), n, m, want_rgb, want_ct);
+        if (cav < 0) label = kConnective;
+        struct Organ {
+          double cx, cy, a, b;
+          std::uint16_t label;
+        };
+        const Organ organs[] = {
+            {-0.33, -0.04, 0.24 * s.lung, 0.25 * s.lung, kLungs},
+            {0.33, -0.04, 0.24 * s.lung, 0.25 * s.lung, kLungs},
+            {-0.18, 0.08, 0.36 * s.liver, 0.22 * s.liver, kLiver},
+            {-0.30, 0.22, 0.09 * s.kidney, 0.065 * s.kidney, kKidneys},
+            {0.30, 0.22, 0.09 * s.kidney, 0.065 * s.kidney, kKidneys},
+            {0.06, -0.10, 0.17 * s.heart, 0.15 * s.heart, kHeart},
+        };
+        for (std::size_t i = 0; i < std::size(organs); ++i) {
+          const Organ& o = organs[i];
+          if (!resolvable(o.a, o.b)) continue;
+          const double d = ellipse_sdf(Xr, Yr, o.cx + s.organ_shift[i][0],
+                                       o.cy + s.organ_shift[i][1], o.a, o.b, w);
+          if (d >= w) continue;
+          t.mix(kTissues[o.label], cover(d, w), n, m, want_rgb, want_ct);
+          if (d < 0) label = o.label;
+        }
+      }
+      // Bones: spine, sternum, ribs in the muscle ring (drawn over everything inside).
+      double bone = ellipse_sdf(Xr, Yr, 0, 0.36, 0.075, 0.075, w);
+      bone = std::min(bone, ellipse_sdf(Xr, Yr, 0, -0.405, 0.08, 0.03, w));
+      if (s.rib > 1e-3 && resolvable(0.04 * s.rib, 0.04 * s.rib)) {
+        const double r = 0.04 * s.rib;
+        for (const auto& centre : s.ribs) {
+          bone = std::min(bone, ellipse_sdf(Xr, Yr, centre[0], centre[1], r, r, w));
+        }
+      }
+      if (bone < w) {
+        t.mix(kTissues[kBone], cover(bone, w), n, m, want_rgb, want_ct);
+        if (bone < 0) label = kBone;
+      }
+    }
   }
-  const double outline = std::min(eff, limb);
-  out.body = outline < 0;
+  return label;
+}
 
-  // Outside: gel (RGB) with the fiducial tubes and tissue showing through near the edge;
-  // air (CT) with the holder / table.
+// Outside the body at `p` (`outline`: the signed distance to the body's outline): gel (RGB) with
+// the fiducial tubes and tissue showing through near the edge; air (CT) with the holder or, for
+// Anatomy::limbs, the table at `table_top`. `half`: pixels per normalised unit.
+Accum outside_layer(const EvalPoint& p, double outline, const Anatomy& anatomy, double half,
+                    double table_top) {
+  const double Xf = p.Xf, Yf = p.Yf, w = p.w;
+  const float n = p.n;
+  const bool want_rgb = p.want_rgb, want_ct = p.want_ct;
   Accum acc{{0, 0, 0}, -1000.f};
   if (want_rgb) {
     const Tissue& gel = kTissues[0];
@@ -447,119 +528,83 @@ void Model::eval(const SliceParams& s, double x, double y, double edge_px, bool 
     const double tube1 = ellipse_sdf(Xf, Yf, -1.08, -0.70, 0.08, 0.08, w);
     const double tube2 = ellipse_sdf(Xf, Yf, 1.08, 0.66, 0.08, 0.08, w);
     const float c = std::max(cover(tube1, w), cover(tube2, w));
-    if (c > 0 && anatomy_.fiducials) {
+    if (c > 0 && anatomy.fiducials) {
       Tissue tube{{kTube[0], kTube[1], kTube[2]}, 0.04f, -1000, 0};
       acc.mix(tube, c, n, 0.f, true, false);
     }
   }
-  if (want_ct && anatomy_.limbs) {
+  if (want_ct && anatomy.limbs) {
     // The table: a bar table_px thick under the body, across the whole field of view.
-    const double top = s.table_top, thick = anatomy_.table_px / half_;
+    const double top = table_top, thick = anatomy.table_px / half;
     const double table = std::max(top - Yf, Yf - (top + thick));
     acc.hu = -1000.f + cover(table, w) * (kHolderHu + 1000.f);
   } else if (want_ct) {
-    const double ga = body_max_a(anatomy_) + 0.10, gb = body_max_b(anatomy_) + 0.10;
+    const double ga = Model::body_max_a(anatomy) + 0.10, gb = Model::body_max_b(anatomy) + 0.10;
     const double inner = ellipse_sdf(Xf, Yf, 0, 0, ga, gb, 1e9);
     const double outer = ellipse_sdf(Xf, Yf, 0, 0, ga + 0.08, gb + 0.08, 1e9);
     const double holder = std::max({-inner, outer, 0.15 - Yf});
     acc.hu = -1000.f + cover(holder, w) * (kHolderHu + 1000.f);
   }
 
+  return acc;
+}
+
+}  // namespace
+
+void Model::eval(const SliceParams& s, double x, double y, double edge_px, bool want_rgb,
+                 bool want_ct, Sample& out) const {
+  // Frame coordinates (fiducial tubes, CT holder) and body coordinates (centre at x0, y0).
+  const double Xf = (x - cx_) / half_, Yf = (y - cy_) / half_;
+  const double X = Xf - s.x0, Y = Yf - s.y0;
+  const double w = edge_px / half_;  // edge width, normalised units
+  // Interior shapes live in body-relative coordinates so they follow the outline's size.
+  const double Xr = s.a > 1e-6 ? X * kBodyA / s.a : kFar, Yr = s.b > 1e-6 ? Y * kBodyB / s.b : kFar;
+  // Interior shapes (organs, ribs) growing from or shrinking to nothing are left out while a
+  // semi-axis is under one output pixel: a sub-pixel speck would appear on one sampling grid and
+  // not on another (the truth grid vs a drifted slice), which no resampling can reproduce.
+  const double px_x = half_ * s.a / kBodyA, px_y = half_ * s.b / kBodyB;  // px per body unit
+
+  // Texture: smooth brightness (4 octaves) and a slow second field.
+  float n = 0.f, m = 0.f;
+  if (want_rgb || want_ct) {
+    if (want_rgb) {
+      n = 0.5f * s.texture[0].at(x, y) + 0.28f * s.texture[1].at(x, y) +
+          0.14f * s.texture[2].at(x, y) + 0.08f * s.texture[3].at(x, y);
+      m = s.marbling.at(x, y);
+    } else {
+      n = s.texture[0].at(x, y);  // CT: the coarse octave only (its pixels are larger)
+    }
+  }
+
+  const EvalPoint point{Xf, Yf, X, Y, Xr, Yr, w, n, m, want_rgb, want_ct, px_x, px_y};
+  const double body = lobed_sdf(X, Y, s.a, s.b, s.lobes.data());
+  const double notch = ellipse_sdf(Xr, Yr, -0.45, -0.50, 0.065, 0.17 * s.notch, w);
+  const double eff = std::max(body, -notch);  // body minus the gel-filled notch
+  // Anatomy::limbs: the nearest limb (arm, leg, foot, toe) and the outline of all parts.
+  double limb = kFar;
+  int nearest = -1;
+  for (int i = 0; i < s.limb_count; ++i) {
+    const Limb& l = s.limbs[std::size_t(i)];
+    const double d = ellipse_sdf(X, Y, l.x, l.y, l.a, l.b, w);
+    if (d < limb) limb = d, nearest = i;
+  }
+  const double outline = std::min(eff, limb);
+  out.body = outline < 0;
+
+  Accum acc = outside_layer(point, outline, anatomy_, half_, s.table_top);
+
   std::uint16_t label = 0;
   if (nearest >= 0 && limb < w && limb < eff) {
-    // A limb: skin, fat, muscle and its bone, nested as in the torso.
-    const Limb& l = s.limbs[std::size_t(nearest)];
-    auto resolved = [&](double a, double b) { return a * half_ >= 1.0 && b * half_ >= 1.0; };
     Accum t = acc;
     t.rgb[0] = t.rgb[1] = t.rgb[2] = 0;
     t.hu = 0;
-    t.mix(kTissues[kSkin], 1.f, n, m, want_rgb, want_ct);
-    label = kSkin;
-    const double skin = 0.018, fat_t = 0.18 * std::min(l.a, l.b);
-    if (resolved(l.a - skin, l.b - skin)) {
-      const double fat = ellipse_sdf(X, Y, l.x, l.y, l.a - skin, l.b - skin, w);
-      if (fat < w) {
-        t.mix(kTissues[kFat], cover(fat, w), n, m, want_rgb, want_ct);
-        if (fat < 0) label = kFat;
-        const double ma = l.a - skin - fat_t, mb = l.b - skin - fat_t;
-        const double mus = resolved(ma, mb) ? ellipse_sdf(X, Y, l.x, l.y, ma, mb, w) : kFar;
-        if (mus < w) {
-          t.mix(kTissues[kMuscle], cover(mus, w), n, m, want_rgb, want_ct);
-          if (mus < 0) label = kMuscle;
-          const double r = l.bone * std::min(l.a, l.b);
-          const double bone =
-              l.bone > 0 && resolved(r, r) ? ellipse_sdf(X, Y, l.x, l.y, r, r, w) : kFar;
-          if (bone < w) {
-            t.mix(kTissues[kBone], cover(bone, w), n, m, want_rgb, want_ct);
-            if (bone < 0) label = kBone;
-          }
-        }
-      }
-    }
+    label = limb_layers(s.limbs[std::size_t(nearest)], point, half_, t);
     acc.over(t, cover(limb, w));
   } else if (eff < w) {  // anywhere near or inside the body
     Accum t = acc;
     t.rgb[0] = t.rgb[1] = t.rgb[2] = 0;
     t.hu = 0;
-    // Nested layers from the outside in; each mixes its colour over what is outside it.
-    t.mix(kTissues[kSkin], 1.f, n, m, want_rgb, want_ct);
-    label = kSkin;
-    const double ts = 0.035;
-    const double fat = lobed_sdf(X, Y, s.a - ts, s.b - ts, s.lobes.data());
-    if (fat < w) {
-      t.mix(kTissues[kFat], cover(fat, w), n, m, want_rgb, want_ct);
-      if (fat < 0) label = kFat;
-      const double mus = lobed_sdf(X, Y, s.a - ts - s.fat_x, s.b - ts - s.fat_y, s.lobes.data());
-      if (mus < w) {
-        // Muscle with fat marbling where the slow field is high.
-        float marbled[3];
-        const float mf = 0.55f * static_cast<float>(smoothstep(0.35, 0.75, m));
-        for (int i = 0; i < 3; ++i)
-          marbled[i] =
-              kTissues[kMuscle].rgb[i] + mf * (kTissues[kFat].rgb[i] - kTissues[kMuscle].rgb[i]);
-        t.mix(kTissues[kMuscle], cover(mus, w), n, m, want_rgb, want_ct, marbled);
-        if (mus < 0) label = kMuscle;
-        const double cav = ellipse_sdf(Xr, Yr, 0, 0, 0.645, 0.355, w);
-        if (cav < w) {
-          t.mix(kTissues[kConnective], cover(cav, w), n, m, want_rgb, want_ct);
-          if (cav < 0) label = kConnective;
-          struct Organ {
-            double cx, cy, a, b;
-            std::uint16_t label;
-          };
-          const Organ organs[] = {
-              {-0.33, -0.04, 0.24 * s.lung, 0.25 * s.lung, kLungs},
-              {0.33, -0.04, 0.24 * s.lung, 0.25 * s.lung, kLungs},
-              {-0.18, 0.08, 0.36 * s.liver, 0.22 * s.liver, kLiver},
-              {-0.30, 0.22, 0.09 * s.kidney, 0.065 * s.kidney, kKidneys},
-              {0.30, 0.22, 0.09 * s.kidney, 0.065 * s.kidney, kKidneys},
-              {0.06, -0.10, 0.17 * s.heart, 0.15 * s.heart, kHeart},
-          };
-          for (std::size_t i = 0; i < std::size(organs); ++i) {
-            const Organ& o = organs[i];
-            if (!resolvable(o.a, o.b)) continue;
-            const double d = ellipse_sdf(Xr, Yr, o.cx + s.organ_shift[i][0],
-                                         o.cy + s.organ_shift[i][1], o.a, o.b, w);
-            if (d >= w) continue;
-            t.mix(kTissues[o.label], cover(d, w), n, m, want_rgb, want_ct);
-            if (d < 0) label = o.label;
-          }
-        }
-        // Bones: spine, sternum, ribs in the muscle ring (drawn over everything inside).
-        double bone = ellipse_sdf(Xr, Yr, 0, 0.36, 0.075, 0.075, w);
-        bone = std::min(bone, ellipse_sdf(Xr, Yr, 0, -0.405, 0.08, 0.03, w));
-        if (s.rib > 1e-3 && resolvable(0.04 * s.rib, 0.04 * s.rib)) {
-          const double r = 0.04 * s.rib;
-          for (const auto& centre : s.ribs) {
-            bone = std::min(bone, ellipse_sdf(Xr, Yr, centre[0], centre[1], r, r, w));
-          }
-        }
-        if (bone < w) {
-          t.mix(kTissues[kBone], cover(bone, w), n, m, want_rgb, want_ct);
-          if (bone < 0) label = kBone;
-        }
-      }
-    }
+    label = torso_layers(s, point, t);
     acc.over(t, cover(eff, w));
   }
   out.label = out.body ? label : 0;

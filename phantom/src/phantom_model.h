@@ -6,7 +6,9 @@
 // uses a texture defined in output pixels and slices (smooth 3-D value noise fixed in the volume).
 #pragma once
 
+#include <algorithm>
 #include <array>
+#include <cmath>
 #include <cstdint>
 #include <random>
 #include <string>
@@ -138,6 +140,11 @@ struct SliceParams {
 };
 
 // What the model gives at one point.
+// A model colour value as an 8-bit level: rounded, clamped to 0..255.
+inline std::uint8_t to_u8(double v) {
+  return static_cast<std::uint8_t>(std::clamp(std::lround(v), 0L, 255L));
+}
+
 struct Sample {
   std::uint16_t label = 0;
   bool body = false;  // inside the body mask (label > 0)

@@ -1,5 +1,5 @@
 // The pack's encoder on the level-0 bytes alone: what `zstd -3 -T2` of the same bytes is
-// compared with (issue #12, scripts/bench/real_size.py). Reads the level-0 channels of a packed
+// compared with (scripts/bench/real_size.py). Reads the level-0 channels of a packed
 // file as `vispack-extract --channel C` wrote them (NRRD, one per channel, in the file's channel
 // order) into memory, then times a format::Writer fed those slices with the packed file's
 // options (dims, spacing, origin, brick edge, channels, label table; zstd level and threads as

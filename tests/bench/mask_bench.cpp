@@ -23,7 +23,7 @@
 #include "vispack/common/atomic_file.h"
 
 #include "vispack/common/parallel.h"
-#include "vispack/pipeline/core/transforms.h"
+#include "vispack/pipeline/imaging/transforms.h"
 #include "vispack/pipeline/mask/mask.h"
 
 namespace vp = vispack::pipeline;

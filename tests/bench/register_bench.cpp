@@ -5,14 +5,15 @@
 // chained error. Wall and CPU time. Prints tables (docs/BENCHMARKS.md "Registration anchored on the
 // CT").
 //   build/bin/register_bench [--slices N]
-// The CT-anchored stack (issue #11): the same stack against a CT 2.84× coarser, every slice
-// prepared once, registered against two predecessors and anchored on its CT slice, then solved.
-// Phantom mode (scripts/bench.sh): registers consecutive slice pairs of a vispack-phantom folder
-// with every method and ecc_scale offered, one thread, and writes the estimated and true pair
-// matrices as JSON (errors are computed by the caller, the same way for every peer); --dump
-// also writes each pair's grey slices as MetaImage (.mhd + .raw) for elastix. Each repetition
-// times the estimate in memory (frames already decoded) and, apart, reading both slices from
-// their PNG files as the stage does (elastix reads its two files too: the comparison adds them).
+// The CT-anchored stack (docs/BENCHMARKS.md, 'Registration anchored on the CT'): the same stack
+// against a CT 2.84× coarser, every slice prepared once, registered against two predecessors and
+// anchored on its CT slice, then solved. Phantom mode (scripts/bench.sh): registers consecutive
+// slice pairs of a vispack-phantom folder with every method and ecc_scale offered, one thread, and
+// writes the estimated and true pair matrices as JSON (errors are computed by the caller, the same
+// way for every peer); --dump also writes each pair's grey slices as MetaImage (.mhd + .raw) for
+// elastix. Each repetition times the estimate in memory (frames already decoded) and, apart,
+// reading both slices from their PNG files as the stage does (elastix reads its two files too: the
+// comparison adds them).
 //   build/bin/register_bench --phantom DIR [--pairs N] [--reps R] --json OUT [--dump DIR]
 #include <algorithm>
 #include <chrono>
@@ -35,6 +36,7 @@
 #include "vispack/common/error.h"
 
 #include "vispack/common/parallel.h"
+#include "vispack/pipeline/imaging/transforms.h"
 #include "vispack/pipeline/register/register.h"
 
 namespace vp = vispack::pipeline;
@@ -326,7 +328,7 @@ int main(int argc, char** argv) {
     std::printf("| %d | compute_pairs | %.1f | %.1f | %.3f |\n", threads, 1000.0 * seconds / n,
                 1000.0 * cpu / n, std::sqrt(sum2 / n));
   }
-  // 3. With the CT anchor (issue #11): the same drifting stack against a CT 2.84× coarser
+  // 3. With the CT anchor: the same drifting stack against a CT 2.84× coarser
   //    (VHP: 0.9375 mm CT, 0.33 mm colour) rendered from the undrifted body in the CT-defined
   //    frame (HU from the grey level inside the body, −1000 outside). Per slice: the frame
   //    prepared once (with its anchor level), the two pair edges and the anchor (compute_pairs

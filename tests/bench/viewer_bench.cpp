@@ -8,11 +8,12 @@
 // renderer (scripts/bench/vtk_peer.py) can render the same view; --spv LIST sets the slices per
 // voxel (default 0.5,1,2,4); with --json, colour frames of the coarser levels (levels of detail,
 // 1 slice per voxel) are timed against the same level-0 reference; --ref-png OUT saves it.
-// The brick-paged renderer (issue 14) is measured first: time to the first picture, then per
-// mode the bricks drawn (levels), skipped and culled, the bytes uploaded against the whole level,
-// the load time and the frame time at the level the screen footprint asks for; --psnr adds its
-// foreground PSNR against the CPU reference of the finest level it draws. --paged-only skips
-// the whole-level measurements (which upload level 0 whole), --no-paged the paged ones;
+// The brick-paged renderer (docs/BENCHMARKS.md, 'Viewer: bricks paged by view') is measured first:
+// time to the first picture, then per mode the bricks drawn (levels), skipped and culled, the bytes
+// uploaded against the whole level, the load time and the frame time at the level the screen
+// footprint asks for; --psnr adds its foreground PSNR against the CPU reference of the finest level
+// it draws. --paged-only skips the whole-level measurements (which upload level 0 whole),
+// --no-paged the paged ones;
 // --modes LIST restricts the paged modes, --reps N sets the frames timed per row (median).
 // Quality is the foreground PSNR (render::diff_foreground: pixels where either image is not
 // black) against vispack's CPU reference ray caster at 8 steps per voxel of the same transfer

@@ -32,8 +32,8 @@ require() {  # TARGET LIBRARY
   links_of "$1" | grep -qx "$2" || { echo "$1 does not link $2" >&2; status=1; }
 }
 image='OpenImageIO|opencv_imgcodecs|vispack_image_io|vispack_pipeline_imaging'
-forbid vispack_pipeline_core "$image|openvdb|vispack_pipeline_(register|mask|labels|pack|vdb|run)" \
-  "the core reads no image and depends on no stage"
+forbid vispack_pipeline_core "$image|opencv|openvdb|vispack_pipeline_(register|mask|labels|pack|vdb|run)" \
+  "the core reads no image, links no OpenCV and depends on no stage"
 forbid vispack_pipeline_pack_merge "$image|openvdb" "the merge reads slab files, no image"
 forbid vispack-merge "$image|openvdb" "vispack-merge runs alone between cluster steps"
 forbid vispack_pipeline_vdb "$image" "the export reads the packed file, no image"

@@ -1,6 +1,6 @@
-// Real-data accuracy of vispack-labels (issue 4): the AAL atlas, colour-coded with 117 labels and
-// original IDs up to 9170, survives the labels stage with every voxel's ID exact — from the clean
-// PNG slices, and from slices with deterministic colour noise inside the tolerance.
+// Real-data accuracy of vispack-labels (docs/GOALS.md §6): the AAL atlas, colour-coded with 117
+// labels and original IDs up to 9170, survives the labels stage with every voxel's ID exact — from
+// the clean PNG slices, and from slices with deterministic colour noise inside the tolerance.
 #include <gtest/gtest.h>
 
 #include <filesystem>

@@ -1,6 +1,6 @@
-// Real-data accuracy of the body mask (issue 4): the head CT's mask excludes the head-holder arc;
-// the Visible Woman slice's gel is removed by the colour refinement, checked against hand-set
-// bounds (docs/SAMPLES.md, tests/data/samples.h).
+// Real-data accuracy of the body mask (docs/GOALS.md §6): the head CT's mask excludes the
+// head-holder arc; the Visible Woman slice's gel is removed by the colour refinement, checked
+// against hand-set bounds (docs/SAMPLES.md, tests/data/samples.h).
 #include <gtest/gtest.h>
 
 #include <cstdio>

@@ -1,8 +1,8 @@
-// Real-data accuracy of the register and mask stages run as a user runs them (issue 4), through
-// build/bin/vispack-register / vispack-mask when they exist, else the stage functions they wrap
-// (core/stage_run.h): the head CT's mask
-// excludes the head-holder arc on every slice; the Visible Woman stack's known shifts are
-// recovered and its gel is removed by the colour refinement, checked against hand-set bounds.
+// Real-data accuracy of the register and mask stages run as a user runs them (docs/GOALS.md §6),
+// through build/bin/vispack-register / vispack-mask when they exist, else the stage functions they
+// wrap (core/stage_run.h): the head CT's mask excludes the head-holder arc on every slice; the
+// Visible Woman stack's known shifts are recovered and its gel is removed by the colour refinement,
+// checked against hand-set bounds.
 #include <gtest/gtest.h>
 
 #include <algorithm>

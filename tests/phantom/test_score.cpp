@@ -260,7 +260,7 @@ TEST(Score, WorkFolderFromTruthThenSpoiled) {
   EXPECT_NE(out.find("transforms.json"), std::string::npos) << out;
 }
 
-// Drift over the body (issue 31): a rotation about the frame's centre moves a point at distance r
+// Drift over the body (score.h): a rotation about the frame's centre moves a point at distance r
 // by 2r·sin(θ/2), so a small body at the centre shows little of what the corners show; a shift
 // moves every point alike; no point, no error.
 TEST(Score, DriftOverTheBodyIsTheLargestMoveOverItsPoints) {

@@ -1,11 +1,11 @@
-// Every body part survives register, mask and labels (issue #30), scored against the truth of
-// the `male-small` phantom: a whole body from head to toes (arms beside the torso with gaps of
-// 2-6 px at this size, the right arm resting on the table, two legs of the same size, two feet,
-// toes), a table in the CT touching the torso and the arm, one block jump, drift, brightness
-// changes, the CT 1.5× coarser. The issue's numbers: drift over the body ≤ 0.5 px RMS and no
-// false jump; mask IoU ≥ 0.95 on every slice whose body covers ≥ 1 % of the frame and ≥ 0.98
-// over the stack; labels ≥ 99.5 % away from class edges; every true part of ≥ 0.5 % of its
-// slice's body kept on ≥ 99 % of the slices; table pixels ≤ 0.1 % of the mask.
+// Every body part survives register, mask and labels (docs/ARCHITECTURE.md, 'The body mask: every
+// part is body'), scored against the truth of the `male-small` phantom: a whole body from head to
+// toes (arms beside the torso with gaps of 2-6 px at this size, the right arm resting on the table,
+// two legs of the same size, two feet, toes), a table in the CT touching the torso and the arm, one
+// block jump, drift, brightness changes, the CT 1.5× coarser. The issue's numbers: drift over the
+// body ≤ 0.5 px RMS and no false jump; mask IoU ≥ 0.95 on every slice whose body covers ≥ 1 % of
+// the frame and ≥ 0.98 over the stack; labels ≥ 99.5 % away from class edges; every true part of ≥
+// 0.5 % of its slice's body kept on ≥ 99 % of the slices; table pixels ≤ 0.1 % of the mask.
 #include <gtest/gtest.h>
 
 #include <cmath>

@@ -244,11 +244,13 @@ TEST(Config, DefaultsForAMinimalConfig) {
   EXPECT_DOUBLE_EQ(c.mask.hu_threshold, -400.0);
   EXPECT_DOUBLE_EQ(c.mask.min_part_mm2, 5.0);
   EXPECT_EQ(c.pack.zstd_level, 3);
-  // Issue 12: by default colour and CT outside the body are cleared and nothing is cropped.
+  // By default (docs/ARCHITECTURE.md, 'The packed file') colour and CT outside the body are cleared
+  // and nothing is cropped.
   EXPECT_FALSE(c.pack.keep_colour_outside_body);
   EXPECT_FALSE(c.pack.keep_ct_outside_body);
   EXPECT_FALSE(c.pack.crop_margin_px.has_value());
-  // Issue 12: no full-size registered colour or CT copies; overlays at most 1024 px.
+  // No full-size registered (docs/ARCHITECTURE.md, 'Work folder layout') colour or CT copies;
+  // overlays at most 1024 px.
   EXPECT_FALSE(c.work.write_registered);
   EXPECT_FALSE(c.work.write_ct);
   EXPECT_EQ(c.work.overlay_max_px, 1024);

@@ -427,10 +427,10 @@ TEST(SegTruth, PngMappingEqualsSegLabelsExactly) {
   EXPECT_EQ(stats.unmatched, 0u);
 }
 
-// JPEG (quality 90, 4:2:0 chroma) blurs colours across boundaries. Issue 4's bar: >= 99.5 % of
-// the pixels inside the body (truth seg_labels > 0, i.e. the truth mask carried onto the drifted
-// grid of each slice) get their true ID, over the whole 64-slice small phantom. Each slice must
-// also reach 99 % (a bad slice cannot hide in the average; a body cross-section of ~20k pixels
+// JPEG (quality 90, 4:2:0 chroma) blurs colours across boundaries. docs/GOALS.md §6's bar: >= 99.5
+// % of the pixels inside the body (truth seg_labels > 0, i.e. the truth mask carried onto the
+// drifted grid of each slice) get their true ID, over the whole 64-slice small phantom. Each slice
+// must also reach 99 % (a bad slice cannot hide in the average; a body cross-section of ~20k pixels
 // has ~2k boundary pixels, so 1 % is half of them). Outside the body (gel, background) only the
 // body edge can be wrong: >= 99.5 % there too. Measured (seed 3): 99.67 % in the body, worst
 // slice 99.43 %, 100 % outside (98.75 % in the body before unsure matches were decided by their

@@ -61,11 +61,12 @@ TEST(Mask, CtMaskDropsHeadHolderAndFillsLungs) {
   EXPECT_GT(iou(body, expect), 0.98);
 }
 
-// Every part that is body stays (issue #30): a torso with an arm 3 px from it and one 9 px from
-// it, a finger-sized part (radius 4 CT px) and two legs-sized discs of nearly the same size all
-// count; a table 3 px thick touching the lower arm, a holder bar 7 px thick (thick enough to
-// survive the opening) and a 2×2 speck do not. With the largest component alone (the rule
-// before issue #30) the arms, the finger and the second leg are lost.
+// Every part that is body stays (docs/ARCHITECTURE.md, 'The body mask: every part is body'): a
+// torso with an arm 3 px from it and one 9 px from it, a finger-sized part (radius 4 CT px) and two
+// legs-sized discs of nearly the same size all count; a table 3 px thick touching the lower arm, a
+// holder bar 7 px thick (thick enough to survive the opening) and a 2×2 speck do not. With the
+// largest component alone (the rule before every part was body) the arms, the finger and the second
+// leg are lost.
 TEST(Mask, CtMaskKeepsEveryBodyPartAndDropsHolders) {
   cv::Mat ct(160, 240, CV_32F, cv::Scalar(-1000));
   cv::Mat expect(ct.size(), CV_8U, cv::Scalar(0));
@@ -370,7 +371,8 @@ TEST(MaskStage, SmallPhantomMatchesTruth) {
     uni += cv::countNonZero(tb | mb);
     if (k != summary.black_slice) worst = std::min(worst, iou(tb, mb));
     // The overlay is written (small slices: full size); the full-size CT copy only with
-    // work.write_ct (issue 12: the later stages resample the CT themselves).
+    // work.write_ct (docs/ARCHITECTURE.md, 'Work folder layout': the later stages resample the CT
+    // themselves).
     EXPECT_TRUE(std::filesystem::exists(vp::slice_output_path(config, "mask", "overlay", k)));
     EXPECT_FALSE(std::filesystem::exists(vp::mask_ct_path(config, k)));
   }
@@ -399,7 +401,7 @@ TEST(MaskCli, ExitCodes) {
 
 // The anatomy preset (anatomy moving and tapering to nothing at both ends, no fiducials, CT 2×
 // coarser) through register, mask and labels, scored by the phantom's scorer against its truth:
-// the issue #11 numbers, mask IoU ≥ 0.98 over the stack and ≥ 0.95 on every slice whose body
+// the docs/GOALS.md §6 numbers, mask IoU ≥ 0.98 over the stack and ≥ 0.95 on every slice whose body
 // covers ≥ 1 % of the frame, labels ≥ 99.5 % equal away from class edges. At the stack's ends the
 // body is a few CT pixels across with cavities near its edge: before the CT body mask filled
 // holes ahead of its opening, the opening cut the thin band over the cavities and half the body

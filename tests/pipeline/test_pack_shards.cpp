@@ -211,9 +211,10 @@ TEST_F(PackShards, OutOfDateSlabRefused) {
   EXPECT_TRUE(read_file(config_.output) == *whole_);
 }
 
-// With the volume cropped to the bodies (pack.crop_margin_px, issue #12) and the colour outside
-// the body kept: the shards pack the same box and the merge equals the whole-stack pack of it;
-// a slab written before the crop changed is refused as out of date, not merged.
+// With the volume cropped to the bodies (pack.crop_margin_px, docs/ARCHITECTURE.md, 'The packed
+// file') and the colour outside the body kept: the shards pack the same box and the merge equals
+// the whole-stack pack of it; a slab written before the crop changed is refused as out of date, not
+// merged.
 TEST_F(PackShards, CroppedAndKeptByteIdentical) {
   const std::string path = *dir_ / "config.json";
   const std::string original = read_file(path);

@@ -1,6 +1,7 @@
-// Issue 12, "store only what a scene needs": colour and CT outside the body cleared by default
-// (pack.keep_outside_body), the optional crop to the body (pack.crop_margin_px), and the stored
-// size against the OpenVDB export. One `small` phantom (256x192x64) is run once for the suite.
+// "Store only what a scene needs" (docs/ARCHITECTURE.md, 'The packed file'): colour and CT outside
+// the body cleared by default (pack.keep_outside_body), the optional crop to the body
+// (pack.crop_margin_px), and the stored size against the OpenVDB export. One `small` phantom
+// (256x192x64) is run once for the suite.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -269,11 +270,11 @@ TEST_F(PackStore, PackResumesOnItsOwnKeysOnly) {
   EXPECT_EQ(pack([](json& c) { c["work"]["overlay_max_px"] = 0; }), 0);
 }
 
-// Issue 12, "intermediates that cost little": by default the work folder holds no full-size
-// registered colour or resampled CT; asking for them (work.write_registered, work.write_ct) on the
-// same work folder reruns only what writes them, the copies equal what the later stages rebuild
-// from the inputs, and the packed file is byte-identical either way. Asking again for none removes
-// the copies (they must not outlive their transforms).
+// "Intermediates that cost little" (docs/ARCHITECTURE.md, 'Work folder layout'): by default the
+// work folder holds no full-size registered colour or resampled CT; asking for them
+// (work.write_registered, work.write_ct) on the same work folder reruns only what writes them, the
+// copies equal what the later stages rebuild from the inputs, and the packed file is byte-identical
+// either way. Asking again for none removes the copies (they must not outlive their transforms).
 TEST_F(PackStore, InspectionCopiesChangeNothingPacked) {
   const Config plain = load_config(path("config.json"));
   const int n = 64;

@@ -21,9 +21,9 @@
 #include "vispack/phantom/score.h"
 #include "vispack/pipeline/core/config.h"
 #include "vispack/pipeline/core/stage_run.h"
-#include "vispack/pipeline/core/transforms.h"
 #include "vispack/pipeline/core/work_layout.h"
 #include "vispack/pipeline/imaging/slice_io.h"
+#include "vispack/pipeline/imaging/transforms.h"
 #include "vispack/pipeline/register/register.h"
 #include "vispack/pipeline/register/register_stage.h"
 
@@ -325,8 +325,8 @@ vp::Config register_phantom(const TempDir& dir, const std::string& preset, int s
 
 // The anatomy preset (anatomy moving and tapering along z, no fiducials, CT 2× coarser), scored
 // by the phantom's own scorer at two stack lengths: the jump found, no false jump, and the
-// 0.5 px goal (issue #11) at both lengths, no growth. Measured 0.34 px (32 slices) and 0.38 px
-// (64) RMS over the corners and centre.
+// 0.5 px goal (docs/GOALS.md §6) at both lengths, no growth. Measured 0.34 px (32 slices) and 0.38
+// px (64) RMS over the corners and centre.
 TEST(RegisterStage, AnatomyPresetDoesNotGrowWithLength) {
   double rms[2] = {0, 0};
   const int lengths[2] = {32, 64};
@@ -373,8 +373,8 @@ TEST(RegisterStage, AnatomyVhpPresetAtRealSize) {
 // The realistic case: colour slices synthesised from the real head CT (vispack-phantom
 // --from-ct: the phantom's own drift, jump, gel, lighting and noise; CT 2× coarser, drift-free),
 // the whole stack (108 slices, the top of the head included), scored against its truth. The
-// 0.5 px goal of issue #11 over every slice; measured 0.31 px (0.25 over the 106 slices whose
-// body covers ≥ 1 % of the frame), the jump found, no false jump. Skips without the sample
+// 0.5 px goal of docs/GOALS.md §6 over every slice; measured 0.31 px (0.25 over the 106 slices
+// whose body covers ≥ 1 % of the frame), the jump found, no false jump. Skips without the sample
 // (scripts/fetch-sample-data.sh head-ct).
 TEST(RegisterStage, HeadCtCaseAgainstTruth) {
   const std::string sample = vispack::test::head_ct_sample();
@@ -545,7 +545,7 @@ TEST(Register, FiducialsStopTheRandomWalk) {
 }
 
 // The QC overlay of a slice whose pairs the run computed is drawn from the small picture kept
-// from that read (issue 12: one decode per slice); with work.write_registered the full-size
+// from that read (one decode per slice); with work.write_registered the full-size
 // registered slice is decoded, warped and downsampled instead. Both pictures show the same
 // registered slice: measured mean difference 0.5 grey levels (small phantom, slice 10).
 TEST(RegisterStage, OverlayFromTheKeptPictureMatchesTheFullSizePath) {

@@ -12,6 +12,7 @@
 #include "test_support.h"
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
+#include "vispack/pipeline/imaging/transforms.h"
 #include "vispack/pipeline/register/register.h"
 
 namespace vp = vispack::pipeline;
@@ -178,12 +179,13 @@ INSTANTIATE_TEST_SUITE_P(Synthetic, AnchorTest,
                                            AnchorCase{{-2.5, 6.0, -4.0}},
                                            AnchorCase{{6.0, 18.0, -9.0}}));
 
-// Two legs of nearly the same size (issue #30): the anchor matches all parts at once, so the
-// alignment that overlaps both legs wins over one that lays one leg on the other, up to the
-// male's block jumps (29 px, 7°). With each side reduced to its largest part (legs_tissue: the
-// right leg in the CT, the left one in the colour slice) the anchor locked the legs onto each
-// other (tried: all five cases fail, 116-121 px off, correlation 0.47-0.76); with all parts but
-// the capture's phase correlation alone (no overlap candidate), (−7°, −29, 10) was not captured.
+// Two legs of nearly the same size (docs/ARCHITECTURE.md, 'The body mask: every part is body'): the
+// anchor matches all parts at once, so the alignment that overlaps both legs wins over one that
+// lays one leg on the other, up to the male's block jumps (29 px, 7°). With each side reduced to
+// its largest part (legs_tissue: the right leg in the CT, the left one in the colour slice) the
+// anchor locked the legs onto each other (tried: all five cases fail, 116-121 px off, correlation
+// 0.47-0.76); with all parts but the capture's phase correlation alone (no overlap candidate),
+// (−7°, −29, 10) was not captured.
 class TwoLegsAnchor : public ::testing::TestWithParam<AnchorCase> {};
 
 TEST_P(TwoLegsAnchor, RecoversTheTransformNotTheOtherLeg) {

@@ -1,4 +1,4 @@
-// Issue 31: CT and segmentation at their own slice spacing, never paired by index. The z mapping
+// CT and segmentation at their own slice spacing, never paired by index. The z mapping
 // (slice_z.h) on its own, the config keys, the mispairing refusal, and the phantom with a CT (and
 // a segmentation) slice only at every 3rd and 5th colour slice run through the pipeline and scored
 // against its truth.
@@ -319,11 +319,12 @@ TEST(SliceZ, LetterSuffixPatternOrdersTheFemalesFiles) {
 
 namespace {
 
-// The realistic case of issue 31: colour synthesised from the real head CT (the phantom's own
-// drift, jump, gel, lighting and noise) at a z spacing `every` times finer than the CT's, the CT
-// interpolated along z to make the colour and the truth, only the CT's own slices kept as the
-// input (vispack-phantom --from-ct --ct-every). 61 colour slices centred in the head; scored over
-// the whole stack. Skips without the sample (scripts/fetch-sample-data.sh head-ct).
+// The realistic case (docs/ARCHITECTURE.md, 'Each input at its own z'): colour synthesised from the
+// real head CT (the phantom's own drift, jump, gel, lighting and noise) at a z spacing `every`
+// times finer than the CT's, the CT interpolated along z to make the colour and the truth, only the
+// CT's own slices kept as the input (vispack-phantom --from-ct --ct-every). 61 colour slices
+// centred in the head; scored over the whole stack. Skips without the sample
+// (scripts/fetch-sample-data.sh head-ct).
 void head_ct_case(int every) {
   const std::string sample = vispack::test::head_ct_sample();
   if (sample.empty())

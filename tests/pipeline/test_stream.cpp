@@ -27,8 +27,9 @@ constexpr int kSlices = 24;  // the tiny preset
 
 // The tiny phantom (CT, colour segmentation with a palette, a black and a duplicated slice) in
 // `dir`, its config patched with `patch` (JSON merge patch) and 8-slice bricks (three slabs); with
-// `every` > 1 a CT and a segmentation slice only at every `every`-th colour slice (issue 31: the
-// CT interpolated along z, the labels from the nearest segmentation slice).
+// `every` > 1 a CT and a segmentation slice only at every `every`-th colour slice
+// (docs/ARCHITECTURE.md, 'Each input at its own z': the CT interpolated along z, the labels from
+// the nearest segmentation slice).
 Config make_case(const test::TempDir& dir, const nlohmann::json& patch, int every = 1) {
   phantom::PhantomOptions po;
   po.preset = "tiny";
@@ -257,7 +258,7 @@ TEST(Stream, ShardsThenMergeGiveTheWholeStackFile) {
   check_shards_then_merge(1);
 }
 
-// Issue 31: a CT and a segmentation slice at every 3rd colour slice; the shards' interpolated CT,
+// A CT and a segmentation slice at every 3rd colour slice; the shards' interpolated CT,
 // masks, nearest-in-z labels and slabs give the whole-stack run's products byte for byte.
 TEST(Stream, ShardsThenMergeWithCtAndSegAtEveryThirdSlice) {
   check_shards_then_merge(3);

@@ -1,5 +1,6 @@
-// transforms.json round trip and the affine conventions of core/transforms.h (docs/ARCHITECTURE.md
-// "Slice transforms"): the rigid map of a colour slice and the inverse of ct_to_rgb.
+// transforms.json round trip and the affine conventions of imaging/transforms.h (the types:
+// core/transform_types.h) (docs/ARCHITECTURE.md "Slice transforms"): the rigid map of a colour
+// slice and the inverse of ct_to_rgb.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -7,7 +8,7 @@
 #include "test_support.h"
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
-#include "vispack/pipeline/core/transforms.h"
+#include "vispack/pipeline/imaging/transforms.h"
 
 using namespace vispack;
 using namespace vispack::pipeline;

@@ -1,10 +1,10 @@
-// The packed file against the phantom's truth (issue 4: "the packed file's channels agree with
-// truth/ within stated tolerances"). The whole pipeline (register, mask, labels, pack) runs on a
-// `small` phantom cut to 24 slices (256x192, the small preset's pixel and CT sizes, the block
+// The packed file against the phantom's truth (docs/GOALS.md §6: "the packed file's channels agree
+// with truth/ within stated tolerances"). The whole pipeline (register, mask, labels, pack) runs on
+// a `small` phantom cut to 24 slices (256x192, the small preset's pixel and CT sizes, the block
 // jump, one black and one duplicated slice), and every channel of the packed file is compared with
 // truth/ voxel by voxel. The tolerances come from the pipeline's goals, not from what today's
 // code measures: the mask goal is IoU >= 0.99 and the registration goal a drift error <= 0.1 px
-// (docs/GOALS.md §6, issue 4). Where the code misses a goal the test fails and says by how
+// (docs/GOALS.md §6). Where the code misses a goal the test fails and says by how
 // much.
 #include <gtest/gtest.h>
 
@@ -27,6 +27,7 @@
 #include "vispack/pipeline/core/stage_run.h"
 #include "vispack/pipeline/core/work_layout.h"
 #include "vispack/pipeline/imaging/slice_io.h"
+#include "vispack/pipeline/imaging/transforms.h"
 #include "vispack/pipeline/run/run.h"
 
 using namespace vispack;
@@ -241,7 +242,7 @@ TEST(PackTruth, TrueTransformsChannelsAgreeWithTruth) {
   ASSERT_EQ(int(stack.size()), kSlices);
   for (int k = 0; k < kSlices; ++k) {
     cv::Mat observed = read_slice(stack[std::size_t(k)].path, config.rgb.raw), registered;
-    cv::warpAffine(observed, registered, cv::Mat(rigid_matrix(t.slices[k].rigid, t.centre())),
+    cv::warpAffine(observed, registered, cv::Mat(rigid_matrix(t.slices[k].rigid, grid_centre(t))),
                    observed.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_REPLICATE);
     write_image(registered_rgb_path(config, k), registered);
   }

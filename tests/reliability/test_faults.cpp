@@ -1,5 +1,5 @@
-// Faults and bad input (issue 7): each case runs vispack-run on a copy of the tiny phantom whose
-// pipeline already ran once, injects one fault, and checks
+// Faults and bad input (docs/RELIABILITY.md): each case runs vispack-run on a copy of the tiny
+// phantom whose pipeline already ran once, injects one fault, and checks
 //  - the exit code (README table: 3 I/O, 4 invalid file, 5 config, 6 input),
 //  - that stderr is exactly one line "vispack-run: error: ..." naming the culprit,
 //  - that every output of the earlier run is still there, byte for byte, and no temporary is left.
@@ -307,8 +307,8 @@ TEST_F(Faults, SliceDisappearsBeforeAStageStarts) {
 TEST_F(Faults, SliceDisappearsMidStage) {
   // Register has written QC overlay 5 (of 24, one thread, in order) when the last slice goes.
   // Register read every slice once, in its pair phase, and draws the overlays from what it kept
-  // (issue 12), so it finishes; mask finds the stack one short of transforms.json and names
-  // the slice.
+  // (docs/ARCHITECTURE.md, 'Work folder layout'), so it finishes; mask finds the stack one short of
+  // transforms.json and names the slice.
   const std::string victim = path("rgb/rgb_0023.png");
   Result r = run_paused("--force", "done:register:5", [&] { fs::remove(victim); });
   expect_error(r, 6, {victim, "gone", "24 slices", "the stack has 23", "rerun vispack-register"});
@@ -321,8 +321,8 @@ TEST_F(Faults, SliceDisappearsMidStage) {
 }
 
 TEST_F(Faults, SliceDisappearsWhileMasking) {
-  // Mask rebuilds the registered colour from the colour folder (issue 12: no full-size copies
-  // in the work folder), so it names the slice when it reaches it.
+  // Mask rebuilds the registered colour from the colour folder (docs/ARCHITECTURE.md, 'Work folder
+  // layout': no full-size copies in the work folder), so it names the slice when it reaches it.
   const std::string victim = path("rgb/rgb_0023.png");
   Result r = run_paused("--force", "done:mask:5", [&] { fs::remove(victim); });
   expect_error(r, 6, {victim, "does not exist"});

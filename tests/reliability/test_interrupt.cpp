@@ -1,11 +1,10 @@
-// Interruption (issue 7): each stage is killed with SIGKILL in the middle of its work, at moments
-// the test controls (VISPACK_TEST_PAUSE stops the stage after it wrote slice k, or for pack after
-// it handed slice k to the writer, and the kill lands while it waits), and besides at seeded
-// random moments that may land anywhere, inside a write too. After every kill, no output path
-// may hold a partial file (a file is either absent, a
-// temporary "*.tmp-*" name, or complete: a PNG that decodes, JSON that parses, a packed file that
-// verifies). After the rerun, every output equals the uninterrupted run's and no temporary file
-// is left behind.
+// Interruption (docs/RELIABILITY.md): each stage is killed with SIGKILL in the middle of its work,
+// at moments the test controls (VISPACK_TEST_PAUSE stops the stage after it wrote slice k, or for
+// pack after it handed slice k to the writer, and the kill lands while it waits), and besides at
+// seeded random moments that may land anywhere, inside a write too. After every kill, no output
+// path may hold a partial file (a file is either absent, a temporary "*.tmp-*" name, or complete: a
+// PNG that decodes, JSON that parses, a packed file that verifies). After the rerun, every output
+// equals the uninterrupted run's and no temporary file is left behind.
 #include <gtest/gtest.h>
 #include <signal.h>
 #include <sys/wait.h>

@@ -1,4 +1,4 @@
-// The viewer and bad packed files (issue 7):
+// The viewer and bad packed files (docs/RELIABILITY.md, 'The viewer'):
 //  - vispack-view refuses a corrupt or hostile file with one line "vispack-view: error: <file>:
 //    ..." and exit 4, before any GL work;
 //  - a brick whose payload fails its checksum is reported by the volume source (FormatError

@@ -190,7 +190,8 @@ TEST(Reference, HalvingTheStepLeavesTheImageUnchanged) {
   }
 }
 
-// The benchmark's quality measure (issue 14): the background shared by both images must not count.
+// The benchmark's quality measure (docs/BENCHMARKS.md, 'Viewer: bricks paged by view'): the
+// background shared by both images must not count.
 TEST(ForegroundDiff, LeavesTheSharedBackgroundOutAndCountsEitherImagesPixels) {
   Image8 a(10, 10), b(10, 10);  // black: background everywhere
   EXPECT_TRUE(std::isinf(diff_foreground(a, b).psnr_db));

@@ -1,9 +1,10 @@
-// Brick-paged rendering (issue 14) against the whole-level renderer and the CPU reference:
-// the bricked frame of one level equals the whole-level frame of that level (no seams, skipping
-// changes nothing); frames whose level follows the screen footprint match the reference of the
-// levels they draw; empty bricks are neither uploaded nor drawn; lost slices never show as a
-// black band; the labels shading and the 2-D transfer function match the reference.
-// Comparisons are over the foreground (body_diff.h) with a maximum-difference bound.
+// Brick-paged rendering (docs/BENCHMARKS.md, 'Viewer: bricks paged by view') against the
+// whole-level renderer and the CPU reference: the bricked frame of one level equals the whole-level
+// frame of that level (no seams, skipping changes nothing); frames whose level follows the screen
+// footprint match the reference of the levels they draw; empty bricks are neither uploaded nor
+// drawn; lost slices never show as a black band; the labels shading and the 2-D transfer function
+// match the reference. Comparisons are over the foreground (body_diff.h) with a maximum-difference
+// bound.
 #include <gtest/gtest.h>
 #include <unistd.h>
 

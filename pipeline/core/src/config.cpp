@@ -267,8 +267,8 @@ void check_unknown_keys(const json& node, const std::string& path, const std::st
   }
 }
 
-// Issue 7: an output must never overwrite an input. `output` and `vdb_output` may not be the
-// config, the palette, or a file in a slice folder; `work_dir` may not be a slice folder.
+// An output must never overwrite an input (docs/RELIABILITY.md). `output` and `vdb_output` may not
+// be the config, the palette, or a file in a slice folder; `work_dir` may not be a slice folder.
 void check_outputs_apart_from_inputs(const Config& config, const Section& top) {
   auto same = [](const std::string& a, const std::string& b) {
     std::error_code ec1, ec2;
@@ -486,7 +486,7 @@ Config load_config(const std::string& path) {
   }
   const std::string& file = config.path;
   const std::string base = fs::path(config.path).parent_path().string();
-  // Issue 31: CT slices are placed along z by ct.slice_spacing_mm and ct.z_offset_mm, one way to
+  // CT slices are placed along z by ct.slice_spacing_mm and ct.z_offset_mm, one way to
   // say one thing; the index offset that came before them is named with its replacement.
   if (config.raw_json.is_object() && config.raw_json.contains("ct") &&
       config.raw_json["ct"].is_object() && config.raw_json["ct"].contains("slice_offset"))

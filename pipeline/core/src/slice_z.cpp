@@ -1,4 +1,5 @@
-// The z of every input slice and the pairings along z (slice_z.h, issue 31).
+// The z of every input slice and the pairings along z (slice_z.h; docs/ARCHITECTURE.md, 'Each input
+// at its own z').
 #include "vispack/pipeline/core/slice_z.h"
 
 #include <algorithm>

@@ -4,8 +4,6 @@
 #include <filesystem>
 #include <set>
 
-#include <opencv2/imgproc.hpp>
-
 #include "vispack/common/error.h"
 #include "vispack/pipeline/core/slice_z.h"
 
@@ -74,9 +72,9 @@ std::vector<SliceFile> stack_slices(const Config& config) {
   std::vector<SliceFile> files = list_slices(config.rgb);
   // CT slice j lies at z = ct.z_offset_mm + j · ct.slice_spacing_mm (slice_z.h): placed by its
   // position in the CT stack, so a CT slice missing inside the CT stack would shift every later
-  // one (issue 7).
+  // one (docs/RELIABILITY.md).
   if (config.ct) check_no_missing_slice(*config.ct, list_slices(*config.ct), "CT");
-  // Issue 31: never a silent mispairing along z (ConfigError when an input covers less than half
+  // Never a silent mispairing along z (ConfigError when an input covers less than half
   // of the colour stack).
   z_extent_warnings(config, int(files.size()));
   return files;
@@ -130,7 +128,7 @@ StackInputs read_stack_inputs(const Config& config) {
 
 Fingerprint intermediates_fingerprint(const Config& config, const StackInputs& inputs) {
   Fingerprint fp;
-  fp.text("intermediates-v2");          // v2: colour and CT rebuilt from the inputs (issue 12)
+  fp.text("intermediates-v2");          // v2: colour and CT rebuilt from the inputs
   fp.content(transforms_path(config));  // by its bytes: shards may rewrite it (fingerprint.h)
   for (const auto& f : inputs.rgb)
     fp.file(f.path);

@@ -15,6 +15,7 @@
 #include "vispack/pipeline/imaging/intermediates.h"
 #include "vispack/pipeline/imaging/outline.h"
 #include "vispack/pipeline/imaging/slice_io.h"
+#include "vispack/pipeline/imaging/transforms.h"
 
 namespace vispack::pipeline {
 
@@ -43,14 +44,15 @@ cv::Mat registered_colour(const Config& config, const StackInputs& inputs, int i
   if (observed.channels() == 1) cv::cvtColor(observed, observed, cv::COLOR_GRAY2RGB);
   if (observed.type() != CV_8UC3)
     throw InputError(cat(file.path, ": colour slice must be 8- or 16-bit grey or RGB"));
-  const cv::Size size = inputs.size();
+  const cv::Size size = grid_size(inputs.transforms);
   if (observed.size() != size)
     throw InputError(cat(file.path, ": slice is ", observed.cols, "x", observed.rows,
                          ", the stack is ", size.width, "x", size.height));
   const SliceTransform& t = inputs.transforms.slices.at(std::size_t(index));
   cv::Mat registered;
-  cv::warpAffine(observed, registered, cv::Mat(rigid_matrix(t.rigid, inputs.transforms.centre())),
-                 size, cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_REPLICATE);
+  cv::warpAffine(observed, registered,
+                 cv::Mat(rigid_matrix(t.rigid, grid_centre(inputs.transforms))), size,
+                 cv::INTER_LINEAR | cv::WARP_INVERSE_MAP, cv::BORDER_REPLICATE);
   return registered;
 }
 
@@ -123,7 +125,7 @@ CtSlice read_ct_slice(const Config& config, const StackInputs& inputs, int index
   }
   const Similarity c =
       inputs.transforms.ct_to_rgb ? *inputs.transforms.ct_to_rgb : defined_ct_to_rgb(config);
-  ct.out_to_ct = output_to_ct(c, inputs.transforms.centre(), image_centre(ct.hu.size()));
+  ct.out_to_ct = output_to_ct(c, grid_centre(inputs.transforms), image_centre(ct.hu.size()));
   return ct;
 }
 
@@ -134,12 +136,13 @@ cv::Mat resampled_ct16(const Config& config, const StackInputs& inputs, int inde
     own = read_ct_slice(config, inputs, index);
     ct = &own;
   }
-  if (ct->hu.empty()) return cv::Mat(inputs.size(), CV_16UC1, cv::Scalar(kOutsideBodyCt16));
-  return encode_hu16(resample_ct(ct->hu, ct->out_to_ct, inputs.size()));
+  if (ct->hu.empty())
+    return cv::Mat(grid_size(inputs.transforms), CV_16UC1, cv::Scalar(kOutsideBodyCt16));
+  return encode_hu16(resample_ct(ct->hu, ct->out_to_ct, grid_size(inputs.transforms)));
 }
 
 Intermediates read_intermediates(const Config& config, const StackInputs& inputs, int index) {
-  const cv::Size size = inputs.size();
+  const cv::Size size = grid_size(inputs.transforms);
   Intermediates in;
   in.rgb = registered_colour(config, inputs, index);
   in.mask = read_checked(mask_path(config, index), CV_8UC1, size);
@@ -158,8 +161,9 @@ Intermediates read_intermediates(const Config& config, const StackInputs& inputs
 
 void clear_outside_body(const Config& config, Intermediates& in) {
   const cv::Size size = in.mask.size();
-  // Issue 12: store only what a scene needs. Gel outside the body varies from voxel to voxel
-  // (texture, noise), so not one brick of it would be uniform; cleared, it costs nothing.
+  // Store only what a scene needs (docs/ARCHITECTURE.md, 'The packed file'). Gel outside the body
+  // varies from voxel to voxel (texture, noise), so not one brick of it would be uniform; cleared,
+  // it costs nothing.
   const bool clear_rgb = !config.pack.keep_colour_outside_body;
   const bool clear_ct = config.ct && !config.pack.keep_ct_outside_body;
   if (clear_rgb || clear_ct) {

@@ -210,6 +210,141 @@ int add_continuing_parts(const cv::Mat& raw, const cv::Mat& hu, const ZNeighbour
   return added.kept;
 }
 
+// The steps of ct_body_mask after the opening, on the box around the kept parts.
+
+// The shaved-off set: threshold pixels (`raw_box`) outside the kept parts, in pieces
+// (8-connected).
+struct ShavedPieces {
+  cv::Mat labels, stats, centroids;
+};
+
+ShavedPieces shaved_pieces(const cv::Mat& raw_box, const cv::Mat& kept) {
+  ShavedPieces p;
+  cv::connectedComponentsWithStats(raw_box & ~kept, p.labels, p.stats, p.centroids, 8, CV_32S);
+  return p;
+}
+
+// A fragment of a holder: the opening leaves spots of a band slightly thicker than its disc as
+// small parts. Such a part is thin (its largest inscribed radius at most kThinPartPx) and
+// touches a shaved-off piece larger than itself (the band it sat on); a small part of its own (a
+// toe, a finger tip) loses only a rim thinner than itself. Fragments leave `kept` (and count as
+// removed); the pieces are recomputed when any did.
+void drop_holder_fragments(cv::Mat& kept, const cv::Mat& raw_box, ShavedPieces& pieces,
+                           PartCounts* counts) {
+  constexpr float kThinPartPx = kCtDetachPx + 1.5f;
+  cv::Mat parts, part_stats, part_centroids;
+  const int np =
+      cv::connectedComponentsWithStats(kept, parts, part_stats, part_centroids, 8, CV_32S);
+  const cv::Mat inside = inside_distance(kept);
+  std::vector<float> radius(std::size_t(np), 0.f);
+  for (int y = 0; y < kept.rows; ++y) {
+    const int* l = parts.ptr<int>(y);
+    const float* d = inside.ptr<float>(y);
+    for (int x = 0; x < kept.cols; ++x)
+      radius[std::size_t(l[x])] = std::max(radius[std::size_t(l[x])], d[x]);
+  }
+  std::vector<std::uint8_t> fragment(std::size_t(np), 0);
+  bool any = false;
+  for (int y = 0; y < kept.rows; ++y) {
+    const int* l = parts.ptr<int>(y);
+    for (int x = 0; x < kept.cols; ++x) {
+      const int part = l[x];
+      if (part == 0 || radius[std::size_t(part)] > kThinPartPx || fragment[std::size_t(part)])
+        continue;
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          const int yy = y + dy, xx = x + dx;
+          if (yy < 0 || xx < 0 || yy >= kept.rows || xx >= kept.cols) continue;
+          const int piece = pieces.labels.at<int>(yy, xx);
+          if (piece > 0 && pieces.stats.at<int>(piece, cv::CC_STAT_AREA) >
+                               part_stats.at<int>(part, cv::CC_STAT_AREA))
+            fragment[std::size_t(part)] = 1, any = true;
+        }
+    }
+  }
+  if (!any) return;
+  kept = kept.clone();
+  for (int y = 0; y < kept.rows; ++y) {
+    const int* l = parts.ptr<int>(y);
+    std::uint8_t* k = kept.ptr<std::uint8_t>(y);
+    for (int x = 0; x < kept.cols; ++x)
+      if (fragment[std::size_t(l[x])]) k[x] = 0;
+  }
+  for (int i = 1; i < np; ++i)
+    if (fragment[std::size_t(i)] && counts) --counts->kept, ++counts->removed;
+  pieces = shaved_pieces(raw_box, kept);
+}
+
+// Where each shaved-off piece lies: `near`, the regrowth's reach (a disc of `reach` around the
+// kept parts); per piece, whether it touches a kept part (within one pixel, 8-neighbours) and
+// whether any of it lies beyond kHolderReachPx of one (the box's edge lies beyond
+// kHolderReachPx, so a piece the box cuts reaches beyond too).
+struct PieceReach {
+  cv::Mat near;
+  std::vector<std::uint8_t> touches, beyond;
+};
+
+PieceReach classify_pieces(const cv::Mat& kept, const ShavedPieces& pieces, int reach) {
+  PieceReach r;
+  cv::Mat distance;
+  cv::dilate(kept, r.near, disc(reach));
+  cv::distanceTransform(~kept, distance, cv::DIST_L2, cv::DIST_MASK_5);
+  const cv::Mat far = distance <= float(kHolderReachPx), touch = distance < 1.5f;
+  r.touches.assign(std::size_t(pieces.stats.rows), 0);
+  r.beyond.assign(std::size_t(pieces.stats.rows), 0);
+  for (int y = 0; y < kept.rows; ++y) {
+    const int* l = pieces.labels.ptr<int>(y);
+    const std::uint8_t* t = touch.ptr<std::uint8_t>(y);
+    const std::uint8_t* f = far.ptr<std::uint8_t>(y);
+    for (int x = 0; x < kept.cols; ++x) {
+      if (l[x] == 0) continue;
+      if (t[x]) r.touches[std::size_t(l[x])] = 1;
+      if (!f[x]) r.beyond[std::size_t(l[x])] = 1;
+    }
+  }
+  return r;
+}
+
+// Where a holder or table touches a part, the opening's disc still fits into the corner between
+// them and keeps a fillet of the holder in the part (an arm resting on the table: its lower edge
+// a CT pixel too low, which turned the CT anchor by 0.25° on the male phantom). The holder (the
+// pieces that touch a part and reach beyond kHolderReachPx), one pixel wider, is taken out of
+// the threshold and the opening repeated: the fillet goes, the part's own edge stays. The pieces
+// and their reach are recomputed when there was a holder.
+void cut_holder_fillets(cv::Mat& kept, const cv::Mat& raw_box, ShavedPieces& pieces,
+                        PieceReach& where, int reach) {
+  cv::Mat holder = cv::Mat::zeros(kept.size(), CV_8UC1);
+  bool any = false;
+  for (int y = 0; y < kept.rows; ++y) {
+    const int* l = pieces.labels.ptr<int>(y);
+    std::uint8_t* o = holder.ptr<std::uint8_t>(y);
+    for (int x = 0; x < kept.cols; ++x)
+      if (l[x] > 0 && where.touches[std::size_t(l[x])] && where.beyond[std::size_t(l[x])])
+        o[x] = 255, any = true;
+  }
+  if (!any) return;
+  cv::dilate(holder, holder, cv::Mat());
+  kept = kept & open_disc(raw_box & ~holder, kCtDetachPx);
+  pieces = shaved_pieces(raw_box, kept);
+  where = classify_pieces(kept, pieces, reach);
+}
+
+// The kept parts plus every shaved-off piece that touches one and lies wholly within
+// kHolderReachPx of one, within the regrowth's reach.
+cv::Mat regrow_shaved_edge(const cv::Mat& kept, const ShavedPieces& pieces,
+                           const PieceReach& where) {
+  cv::Mat grown = kept.clone();
+  for (int y = 0; y < kept.rows; ++y) {
+    const int* l = pieces.labels.ptr<int>(y);
+    const std::uint8_t* nr = where.near.ptr<std::uint8_t>(y);
+    std::uint8_t* g = grown.ptr<std::uint8_t>(y);
+    for (int x = 0; x < kept.cols; ++x)
+      if (l[x] > 0 && nr[x] && where.touches[std::size_t(l[x])] && !where.beyond[std::size_t(l[x])])
+        g[x] = 255;
+  }
+  return grown;
+}
+
 }  // namespace
 
 cv::Mat ct_body_mask(const cv::Mat& ct_hu, double hu_threshold, double min_part_px,
@@ -246,115 +381,13 @@ cv::Mat ct_body_mask(const cv::Mat& ct_hu, double hu_threshold, double min_part_
       cv::Rect(bounds.x - m, bounds.y - m, bounds.width + 2 * m, bounds.height + 2 * m) &
       cv::Rect(0, 0, body.cols, body.rows);
   cv::Mat kept = body(box);
-  // The shaved-off set: threshold pixels outside the kept parts, in pieces (8-connected).
-  cv::Mat labels, stats, centroids;
-  cv::connectedComponentsWithStats(raw(box) & ~kept, labels, stats, centroids, 8, CV_32S);
-  // A fragment of a holder: the opening leaves spots of a band slightly thicker than its disc
-  // as small parts. Such a part is thin (its largest inscribed radius at most kThinPartPx) and
-  // touches a shaved-off piece larger than itself (the band it sat on); a small part of its own
-  // (a toe, a finger tip) loses only a rim thinner than itself.
-  {
-    constexpr float kThinPartPx = kCtDetachPx + 1.5f;
-    cv::Mat parts, part_stats, part_centroids;
-    const int np =
-        cv::connectedComponentsWithStats(kept, parts, part_stats, part_centroids, 8, CV_32S);
-    const cv::Mat inside = inside_distance(kept);
-    std::vector<float> radius(std::size_t(np), 0.f);
-    for (int y = 0; y < box.height; ++y) {
-      const int* l = parts.ptr<int>(y);
-      const float* d = inside.ptr<float>(y);
-      for (int x = 0; x < box.width; ++x)
-        radius[std::size_t(l[x])] = std::max(radius[std::size_t(l[x])], d[x]);
-    }
-    std::vector<std::uint8_t> fragment(std::size_t(np), 0);
-    bool any = false;
-    for (int y = 0; y < box.height; ++y) {
-      const int* l = parts.ptr<int>(y);
-      for (int x = 0; x < box.width; ++x) {
-        const int part = l[x];
-        if (part == 0 || radius[std::size_t(part)] > kThinPartPx || fragment[std::size_t(part)])
-          continue;
-        for (int dy = -1; dy <= 1; ++dy)
-          for (int dx = -1; dx <= 1; ++dx) {
-            const int yy = y + dy, xx = x + dx;
-            if (yy < 0 || xx < 0 || yy >= box.height || xx >= box.width) continue;
-            const int piece = labels.at<int>(yy, xx);
-            if (piece > 0 &&
-                stats.at<int>(piece, cv::CC_STAT_AREA) > part_stats.at<int>(part, cv::CC_STAT_AREA))
-              fragment[std::size_t(part)] = 1, any = true;
-          }
-      }
-    }
-    if (any) {
-      kept = kept.clone();
-      for (int y = 0; y < box.height; ++y) {
-        const int* l = parts.ptr<int>(y);
-        std::uint8_t* k = kept.ptr<std::uint8_t>(y);
-        for (int x = 0; x < box.width; ++x)
-          if (fragment[std::size_t(l[x])]) k[x] = 0;
-      }
-      for (int i = 1; i < np; ++i)
-        if (fragment[std::size_t(i)] && counts) --counts->kept, ++counts->removed;
-      cv::connectedComponentsWithStats(raw(box) & ~kept, labels, stats, centroids, 8, CV_32S);
-    }
-  }
-  // Distance to the nearest kept pixel: far within kHolderReachPx, touching within one pixel
-  // (8-neighbours); the regrowth itself within a disc of `reach` (the box's edge lies beyond
-  // kHolderReachPx, so a piece the box cuts reaches beyond too). A piece comes back when it
-  // touches a kept part and lies wholly within kHolderReachPx of one.
-  cv::Mat near;
-  std::vector<std::uint8_t> touches, beyond;
-  auto classify = [&] {
-    cv::Mat distance;
-    cv::dilate(kept, near, disc(reach));
-    cv::distanceTransform(~kept, distance, cv::DIST_L2, cv::DIST_MASK_5);
-    const cv::Mat far = distance <= float(kHolderReachPx), touch = distance < 1.5f;
-    touches.assign(std::size_t(stats.rows), 0);
-    beyond.assign(std::size_t(stats.rows), 0);
-    for (int y = 0; y < box.height; ++y) {
-      const int* l = labels.ptr<int>(y);
-      const std::uint8_t* t = touch.ptr<std::uint8_t>(y);
-      const std::uint8_t* f = far.ptr<std::uint8_t>(y);
-      for (int x = 0; x < box.width; ++x) {
-        if (l[x] == 0) continue;
-        if (t[x]) touches[std::size_t(l[x])] = 1;
-        if (!f[x]) beyond[std::size_t(l[x])] = 1;
-      }
-    }
-  };
-  classify();
-  {
-    // Where a holder or table touches a part, the opening's disc still fits into the corner
-    // between them and keeps a fillet of the holder in the part (an arm resting on the table:
-    // its lower edge a CT pixel too low, which turned the CT anchor by 0.25° on the male
-    // phantom). The holder, one pixel wider, is taken out of the threshold and the opening
-    // repeated: the fillet goes, the part's own edge stays.
-    cv::Mat holder = cv::Mat::zeros(kept.size(), CV_8UC1);
-    bool any = false;
-    for (int y = 0; y < box.height; ++y) {
-      const int* l = labels.ptr<int>(y);
-      std::uint8_t* o = holder.ptr<std::uint8_t>(y);
-      for (int x = 0; x < box.width; ++x)
-        if (l[x] > 0 && touches[std::size_t(l[x])] && beyond[std::size_t(l[x])])
-          o[x] = 255, any = true;
-    }
-    if (any) {
-      cv::dilate(holder, holder, cv::Mat());
-      kept = kept & open_disc(raw(box) & ~holder, kCtDetachPx);
-      cv::connectedComponentsWithStats(raw(box) & ~kept, labels, stats, centroids, 8, CV_32S);
-      classify();
-    }
-  }
-  cv::Mat grown = kept.clone();
-  for (int y = 0; y < box.height; ++y) {
-    const int* l = labels.ptr<int>(y);
-    const std::uint8_t* nr = near.ptr<std::uint8_t>(y);
-    std::uint8_t* g = grown.ptr<std::uint8_t>(y);
-    for (int x = 0; x < box.width; ++x)
-      if (l[x] > 0 && nr[x] && touches[std::size_t(l[x])] && !beyond[std::size_t(l[x])]) g[x] = 255;
-  }
+  const cv::Mat raw_box = raw(box);
+  ShavedPieces pieces = shaved_pieces(raw_box, kept);
+  drop_holder_fragments(kept, raw_box, pieces, counts);
+  PieceReach where = classify_pieces(kept, pieces, reach);
+  cut_holder_fillets(kept, raw_box, pieces, where, reach);
   cv::Mat out = cv::Mat::zeros(body.size(), CV_8UC1);
-  fill_holes(grown).copyTo(out(box));
+  fill_holes(regrow_shaved_edge(kept, pieces, where)).copyTo(out(box));
   continuing(out);
   return out;
 }

@@ -102,7 +102,7 @@ cv::Mat read_raw(const std::string& path, const RawLayout& raw, std::uint64_t fi
 }
 
 // OpenImageIO error texts span several lines ("Read error...\nPNG library error"); errors are
-// one line (issue 7), so the lines are joined with "; ".
+// one line (docs/RELIABILITY.md), so the lines are joined with "; ".
 std::string one_line(std::string text) {
   while (!text.empty() && (text.back() == '\n' || text.back() == '\r'))
     text.pop_back();
@@ -119,7 +119,7 @@ std::string one_line(std::string text) {
 
 // A PNG must hold its chunks up to IEND within the file. Checked before libpng sees the file:
 // libpng reports a truncated stream by printing "libpng error: ..." to stderr itself, which
-// would break the one-line error rule (issue 7). Reads 8 bytes per chunk.
+// would break the one-line error rule (docs/RELIABILITY.md). Reads 8 bytes per chunk.
 void check_png_complete(const std::string& path, std::uint64_t size) {
   std::ifstream in(path, std::ios::binary);
   unsigned char head[8];
@@ -194,7 +194,8 @@ void check_bmp_header(const std::string& path) {
 }
 
 // OpenImageIO's readers can throw C++ exceptions of their own (std::length_error, bad_alloc)
-// on hostile files; they become InputError naming the file (issue 7: one line, the file named).
+// on hostile files; they become InputError naming the file (docs/RELIABILITY.md: one line, the file
+// named).
 template <class F>
 auto guard_decoder(const std::string& path, F&& f) -> decltype(f()) {
   try {

@@ -13,6 +13,7 @@
 #include "vispack/common/error.h"
 #include "vispack/common/parallel.h"
 #include "vispack/pipeline/imaging/slice_io.h"
+#include "vispack/pipeline/imaging/transforms.h"
 
 namespace vispack::pipeline {
 
@@ -135,6 +136,44 @@ void LabelStats::merge(const LabelStats& o) {
 
 // ---- mapping ----
 
+namespace {
+
+// Neighbourhood fill of unmatched and unsure pixels (`unsure`; `matched` is 0 there): candidates
+// are the IDs of the confident (exact, or nearest within kConfidentDistance) pixels in the 9x9
+// window; the one whose palette colour is nearest in luma-weighted YCbCr wins (ties: smaller
+// ID). Reads only matched pixels, so the result does not depend on the order of the unmatched
+// ones. Writes the winners into `out` (the label IDs, CV_16UC1).
+void fill_unsure(const cv::Mat& seg, const ColourMatcher& matcher, const cv::Mat& matched,
+                 const std::vector<cv::Point>& unsure, cv::Mat& out) {
+  std::vector<std::uint16_t> candidates;
+  for (const cv::Point& q : unsure) {
+    candidates.clear();
+    for (int dy = -kFillRadius; dy <= kFillRadius; ++dy)
+      for (int dx = -kFillRadius; dx <= kFillRadius; ++dx) {
+        int x = q.x + dx, y = q.y + dy;
+        if (x < 0 || y < 0 || x >= seg.cols || y >= seg.rows || !matched.at<std::uint8_t>(y, x))
+          continue;
+        candidates.push_back(out.at<std::uint16_t>(y, x));
+      }
+    const cv::Vec3b& p = seg.at<cv::Vec3b>(q.y, q.x);
+    double best_d2 = 1e300;
+    std::uint16_t best = 0;
+    for (std::uint16_t id : candidates) {
+      const auto* c = matcher.colour_of(id);
+      if (!c) continue;
+      double dr = (*c)[0] - p[0], dg = (*c)[1] - p[1], db = (*c)[2] - p[2];
+      double dY = 0.299 * dr + 0.587 * dg + 0.114 * db;
+      double dCb = -0.168736 * dr - 0.331264 * dg + 0.5 * db,
+             dCr = 0.5 * dr - 0.418688 * dg - 0.081312 * db;
+      double d2 = dY * dY + kChromaWeight * (dCb * dCb + dCr * dCr);
+      if (d2 < best_d2 || (d2 == best_d2 && id < best)) best_d2 = d2, best = id;
+    }
+    if (!candidates.empty()) out.at<std::uint16_t>(q.y, q.x) = best;
+  }
+}
+
+}  // namespace
+
 cv::Mat map_colours(const cv::Mat& seg_in, const ColourMatcher& matcher, bool strict,
                     const std::string& what, LabelStats* stats) {
   cv::Mat seg = seg_in;
@@ -187,35 +226,7 @@ cv::Mat map_colours(const cv::Mat& seg_in, const ColourMatcher& matcher, bool st
       }
     }
   }
-  // Neighbourhood fill of unmatched and unsure pixels: candidates are the IDs of the confident
-  // (exact, or nearest within kConfidentDistance) pixels in the 9x9 window; the one
-  // whose palette colour is nearest in luma-weighted YCbCr wins (ties: smaller ID). Reads only
-  // matched pixels, so the result does not depend on the order of the unmatched ones.
-  std::vector<std::uint16_t> candidates;
-  for (const cv::Point& q : unsure) {
-    candidates.clear();
-    for (int dy = -kFillRadius; dy <= kFillRadius; ++dy)
-      for (int dx = -kFillRadius; dx <= kFillRadius; ++dx) {
-        int x = q.x + dx, y = q.y + dy;
-        if (x < 0 || y < 0 || x >= seg.cols || y >= seg.rows || !matched.at<std::uint8_t>(y, x))
-          continue;
-        candidates.push_back(out.at<std::uint16_t>(y, x));
-      }
-    const cv::Vec3b& p = seg.at<cv::Vec3b>(q.y, q.x);
-    double best_d2 = 1e300;
-    std::uint16_t best = 0;
-    for (std::uint16_t id : candidates) {
-      const auto* c = matcher.colour_of(id);
-      if (!c) continue;
-      double dr = (*c)[0] - p[0], dg = (*c)[1] - p[1], db = (*c)[2] - p[2];
-      double dY = 0.299 * dr + 0.587 * dg + 0.114 * db;
-      double dCb = -0.168736 * dr - 0.331264 * dg + 0.5 * db,
-             dCr = 0.5 * dr - 0.418688 * dg - 0.081312 * db;
-      double d2 = dY * dY + kChromaWeight * (dCb * dCb + dCr * dCr);
-      if (d2 < best_d2 || (d2 == best_d2 && id < best)) best_d2 = d2, best = id;
-    }
-    if (!candidates.empty()) out.at<std::uint16_t>(q.y, q.x) = best;
-  }
+  fill_unsure(seg, matcher, matched, unsure, out);
   if (stats) stats->merge(local);
   return out;
 }

@@ -26,14 +26,15 @@ LabelsStageJob::LabelsStageJob(const Config& config, const StageOptions& options
   stack_ = stack_slices(config);
   const int n = int(stack_.size());
   if (seg.slice_spacing_mm) {
-    // Each colour slice takes the segmentation slice nearest in z (slice_z.h, issue 31).
+    // Each colour slice takes the segmentation slice nearest in z (slice_z.h; docs/ARCHITECTURE.md,
+    // 'Each input at its own z').
     seg_files_ = list_slices(seg);
     check_no_missing_slice(seg, seg_files_, "segmentation");
   } else {
     for (const auto& f : list_slices(seg))
       seg_by_number_[{f.number, f.letter}] = f.path;
     // Matched by file number: a segmentation of fewer slices than half the colour stack's is a
-    // stack at another spacing, never to be paired by number (issue 31).
+    // stack at another spacing, never to be paired by number (slice_z.h).
     int matched = 0;
     for (const auto& f : stack_)
       matched += seg_by_number_.count({f.number, f.letter}) ? 1 : 0;

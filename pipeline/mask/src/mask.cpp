@@ -8,7 +8,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "vispack/common/error.h"
-#include "vispack/pipeline/core/transforms.h"
+#include "vispack/pipeline/imaging/transforms.h"
 
 namespace vispack::pipeline {
 namespace {

@@ -13,11 +13,11 @@
 #include "vispack/common/error.h"
 #include "vispack/common/parallel.h"
 #include "vispack/pipeline/core/slice_z.h"
-#include "vispack/pipeline/core/transforms.h"
 #include "vispack/pipeline/core/work_layout.h"
 #include "vispack/pipeline/imaging/intermediates.h"
 #include "vispack/pipeline/imaging/opencv_threads.h"
 #include "vispack/pipeline/imaging/slice_io.h"
+#include "vispack/pipeline/imaging/transforms.h"
 #include "vispack/pipeline/mask/mask.h"
 #include "vispack/pipeline/mask/mask_stage.h"
 
@@ -60,7 +60,7 @@ std::string MaskStageJob::input_fingerprint(int k) const {
   const CtAtZ at = ct_at_colour_slice(config_, int(inputs_.ct.size()), k);
   Fingerprint fp;
   // v2: colour from the input slice; v3: every body part; v4: continuity along z, elongated
-  // parts of soft tissue.
+  // parts of soft tissue (docs/ARCHITECTURE.md, 'The body mask: every part is body').
   fp.text("mask-v4").file(inputs_.rgb[std::size_t(k)].path);
   if (at.inside()) fp.file(inputs_.ct[std::size_t(at.below)].path);
   // v4: the part rule's continuity along z reads the CT slices beside an exact one.
@@ -173,7 +173,7 @@ StageResult MaskStageJob::finish() {
     run_.set_quality("mean_gel_colour", {gel_sum_[0] / gel_count_, gel_sum_[1] / gel_count_,
                                          gel_sum_[2] / gel_count_});
   if (counted > 0) run_.set_report("mask_ms_per_slice", compute_ns_.load() / 1e6 / counted);
-  // Issue 31: a stack with no body at all is a config mistake far more often than a volume of gel
+  // A stack with no body at all is a config mistake far more often than a volume of gel
   // (printed even with --quiet: it changes what the output means).
   nlohmann::json warnings = nlohmann::json::array();
   if (counted > 0 && sum == 0.0)

@@ -47,28 +47,57 @@ class SlabFile {
     std::error_code ec;
     const std::uint64_t file_size = fs::file_size(path, ec);
     if (ec) throw IoError(cat(path, ": cannot read its size: ", ec.message()));
-    {
-      char magic[8] = {};
-      if (file_size < 8 + 4 + 8) throw bad("not a vispack slab file (bad magic or truncated)");
-      read_exactly(magic, 8);
-      if (std::memcmp(magic, kSlabMagic, 8) != 0)
-        throw bad("not a vispack slab file (bad magic or truncated)");
-      Xxh64Stream hash;
-      hash.update(magic, 8);
-      std::vector<char> buffer(std::size_t(1) << 20);
-      for (std::uint64_t left = file_size - 16; left > 0;) {
-        const std::size_t n = std::size_t(std::min<std::uint64_t>(left, buffer.size()));
-        read_exactly(buffer.data(), n);
-        hash.update(buffer.data(), n);
-        left -= n;
-      }
-      std::uint64_t sum = 0;
-      read_exactly(&sum, 8);
-      if (hash.digest() != sum) throw bad("checksum mismatch (corrupt or truncated)");
-      if (std::fseek(file_.get(), 8, SEEK_SET) != 0) throw IoError(cat(path, ": seek failed"));
-    }
+    check_magic_and_checksum(file_size);
     pos_ = 8;
     end_ = file_size - 8;
+    const json expected = read_header(expected_header, expected_input, slices);
+    read_bricks(expected["bricks"].get<std::size_t>());
+    read_level1_frames(level1_bytes);
+    if (pos_ != end_) throw bad("trailing bytes after the level-1 slices");
+    payload_file_.fd = fileno(file_.get());
+    payload_file_.name = path;
+  }
+
+  // The bricks (index order within the slab), their stored bytes at file_offset in
+  // payload_file(); once.
+  std::vector<format::EncodedBrick> take_bricks() { return std::move(bricks_); }
+  const format::PayloadFile& payload_file() const { return payload_file_; }
+  // The next `n` bytes of channel c's level-1 slices into out.
+  void read_level1(std::size_t c, std::uint8_t* out, std::size_t n) { readers_[c]->read(out, n); }
+  // Checks that every channel's level-1 frame ended exactly after what was read.
+  void finish_level1() {
+    for (auto& r : readers_)
+      r->finish();
+  }
+
+ private:
+  // The magic, then the trailing checksum over everything before it, read once through a small
+  // buffer; leaves the file positioned after the magic.
+  void check_magic_and_checksum(std::uint64_t file_size) {
+    char magic[8] = {};
+    if (file_size < 8 + 4 + 8) throw bad("not a vispack slab file (bad magic or truncated)");
+    read_exactly(magic, 8);
+    if (std::memcmp(magic, kSlabMagic, 8) != 0)
+      throw bad("not a vispack slab file (bad magic or truncated)");
+    Xxh64Stream hash;
+    hash.update(magic, 8);
+    std::vector<char> buffer(std::size_t(1) << 20);
+    for (std::uint64_t left = file_size - 16; left > 0;) {
+      const std::size_t n = std::size_t(std::min<std::uint64_t>(left, buffer.size()));
+      read_exactly(buffer.data(), n);
+      hash.update(buffer.data(), n);
+      left -= n;
+    }
+    std::uint64_t sum = 0;
+    read_exactly(&sum, 8);
+    if (hash.digest() != sum) throw bad("checksum mismatch (corrupt or truncated)");
+    if (std::fseek(file_.get(), 8, SEEK_SET) != 0) throw IoError(cat(path_, ": seek failed"));
+  }
+
+  // The JSON header, checked against the expected one (version, pack options and stack shape,
+  // then the input fingerprint). Returns the expected header.
+  json read_header(const std::string& expected_header, const std::string& expected_input,
+                   std::pair<int, int> slices) {
     std::uint32_t header_size = 0;
     take(&header_size, 4);
     if (header_size > end_ - pos_) throw bad("truncated header");
@@ -77,7 +106,7 @@ class SlabFile {
     json header = json::parse(header_text, nullptr, false);
     if (!header.is_object() || !header.contains("input")) throw bad("bad header");
     if (header.value("version", 0) != kSlabVersion) {
-      throw InputError(cat(path, ": slab file version ", header.value("version", 0),
+      throw InputError(cat(path_, ": slab file version ", header.value("version", 0),
                            " (another vispack-pack); this merge reads version ", kSlabVersion,
                            ": rerun vispack-pack --slices ", slices.first, ":", slices.second));
     }
@@ -85,17 +114,21 @@ class SlabFile {
     json expected = json::parse(expected_header);
     header["input"] = expected["input"];
     if (header != expected) {
-      throw InputError(cat(path,
+      throw InputError(cat(path_,
                            ": written with other pack options or another stack shape; rerun "
                            "vispack-pack --slices ",
                            slices.first, ":", slices.second));
     }
     if (input != expected_input) {
-      throw InputError(cat(path, ": out of date: slices ", slices.first, ":", slices.second,
+      throw InputError(cat(path_, ": out of date: slices ", slices.first, ":", slices.second,
                            " changed since it was written; rerun vispack-pack --slices ",
                            slices.first, ":", slices.second));
     }
-    const std::size_t count = expected["bricks"].get<std::size_t>();
+    return expected;
+  }
+
+  // `count` brick records: codec, range, checksum, label set; the stored bytes stay in the file.
+  void read_bricks(std::size_t count) {
     bricks_.resize(count);
     for (auto& b : bricks_) {
       std::uint8_t rec[kSlabRecordSize];
@@ -118,6 +151,10 @@ class SlabFile {
       b.file_bytes = size;
       skip(size);
     }
+  }
+
+  // Each channel's level-1 slices: one zstd frame, held compressed and decoded on demand.
+  void read_level1_frames(const std::vector<std::size_t>& level1_bytes) {
     for (std::size_t c = 0; c < level1_bytes.size(); ++c) {
       std::uint64_t raw = 0, size = 0;
       take(&raw, 8);
@@ -129,26 +166,10 @@ class SlabFile {
       frames_.emplace_back(new std::uint8_t[std::size_t(size)]);
       take(frames_.back().get(), size);
       readers_.push_back(std::make_unique<format::ZstdFrameReader>(
-          frames_.back().get(), std::size_t(size), cat(path, ": level-1 slices of channel ", c)));
+          frames_.back().get(), std::size_t(size), cat(path_, ": level-1 slices of channel ", c)));
     }
-    if (pos_ != end_) throw bad("trailing bytes after the level-1 slices");
-    payload_file_.fd = fileno(file_.get());
-    payload_file_.name = path;
   }
 
-  // The bricks (index order within the slab), their stored bytes at file_offset in
-  // payload_file(); once.
-  std::vector<format::EncodedBrick> take_bricks() { return std::move(bricks_); }
-  const format::PayloadFile& payload_file() const { return payload_file_; }
-  // The next `n` bytes of channel c's level-1 slices into out.
-  void read_level1(std::size_t c, std::uint8_t* out, std::size_t n) { readers_[c]->read(out, n); }
-  // Checks that every channel's level-1 frame ended exactly after what was read.
-  void finish_level1() {
-    for (auto& r : readers_)
-      r->finish();
-  }
-
- private:
   FormatError bad(const std::string& what) const { return FormatError(cat(path_, ": ", what)); }
   void read_exactly(void* dst, std::size_t n) {
     if (n > 0 && std::fread(dst, 1, n, file_.get()) != n) {

@@ -1,5 +1,5 @@
 // The plan every pack derives from the config and the work folder before it reads a slice (a
-// whole-stack pack, a shard and a merge alike: pipeline/pack.h), and the report they share.
+// whole-stack pack, a shard and a merge alike: pipeline/pack/pack.h), and the report they share.
 // Private to pipeline/pack. It reads no image itself: the body bounds of a cropped pack come from
 // the caller (the masks for a pack, the slab files' headers for a merge), so a merge links no
 // image library (vispack-merge starts in a fraction of vispack-pack's time).

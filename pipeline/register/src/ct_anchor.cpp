@@ -11,6 +11,7 @@
 #include "vispack/common/error.h"
 #include "vispack/common/math_constants.h"
 #include "vispack/pipeline/imaging/outline.h"
+#include "vispack/pipeline/imaging/transforms.h"
 #include "vispack/pipeline/register/ecc.h"
 #include "vispack/pipeline/register/rotation_search.h"
 
@@ -277,6 +278,106 @@ cv::Mat downsample(const cv::Mat& image, double scale) {
   return out;
 }
 
+// Step 1 of the header: the CT slice as float, reduced to the body. Only the body takes part:
+// what the CT shows around it (head-holder, table) has no counterpart in the colour slice and,
+// beside a small body at the stack's ends, biases the alignment (rotation most). Everything
+// outside the body (grown by one pixel, its partial-volume edge) becomes air; in that edge, what
+// is denser than the threshold is not the body's partial volume but a holder or table touching
+// it (an arm resting on the table): clamped to the threshold.
+cv::Mat ct_body_only(const cv::Mat& ct_hu, const AnchorOptions& options) {
+  cv::Mat ct32;
+  ct_hu.convertTo(ct32, CV_32F);
+  cv::Mat keep;
+  const cv::Mat body = ct_body_mask(ct32, options.hu_threshold, options.min_part_ct_px);
+  cv::dilate(body, keep, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(3, 3)));
+  ct32.setTo(cv::Scalar(kHuLow), keep == 0);
+  const cv::Mat edge = keep & ~body;
+  cv::Mat clamped = cv::min(ct32, options.hu_threshold);
+  clamped.copyTo(ct32, edge);
+  return ct32;
+}
+
+// The body's size on the template (moments `mo` of its body pixels): its radius of gyration and
+// the rotation's lever in colour pixels, and σ scaled by the radius (kSigmaRadiusWorkingPx).
+void measure_body(const cv::Mat& tmpl, const cv::Moments& mo, double sx, double sy,
+                  AnchorEstimate& est) {
+  const double mx = mo.m10 / mo.m00, my = mo.m01 / mo.m00;
+  const double var_x = mo.m20 / mo.m00 - mx * mx, var_y = mo.m02 / mo.m00 - my * my;
+  // Radius of gyration in colour pixels (anisotropy of sx, sy is negligible).
+  est.radius_px = std::sqrt(std::max(0.0, var_x / (sx * sx) + var_y / (sy * sy)));
+  // The rotation's lever from the template's gradients about the centroid.
+  cv::Mat smooth, gx, gy;
+  cv::GaussianBlur(tmpl, smooth, cv::Size(0, 0), 1.0);
+  cv::Sobel(smooth, gx, CV_32F, 1, 0, 3);
+  cv::Sobel(smooth, gy, CV_32F, 0, 1, 3);
+  double it = 0, ir = 0;
+  for (int y = 0; y < gx.rows; ++y) {
+    const float* px = gx.ptr<float>(y);
+    const float* py = gy.ptr<float>(y);
+    for (int x = 0; x < gx.cols; ++x) {
+      const double tq = (x - mx) * py[x] - (y - my) * px[x];
+      it += 0.5 * (double(px[x]) * px[x] + double(py[x]) * py[x]);
+      ir += tq * tq;
+    }
+  }
+  est.lever_px = it > 0 ? std::sqrt(ir / it) / sx : 0.0;
+  const double radius_working = est.radius_px * sx;
+  est.sigma_px *=
+      std::sqrt(kSigmaRadiusWorkingPx / std::max(kSigmaRadiusWorkingPx, radius_working));
+}
+
+// Step 3 of the header: multimodal ECC of the colour (through a fitted colour → HU polynomial)
+// against the template, from `start` (working grid → input). Two passes: half working
+// resolution, then full; the polynomial refitted before each. Returns the refined matrix and
+// its correlation in *rho_out, or nothing when a fit fails or the refinement diverges.
+std::optional<cv::Matx23d> refine_multimodal(const cv::Mat& tmpl, const cv::Mat& colour,
+                                             cv::Matx23d start, int iterations, double* rho_out) {
+  double rho = -1.0;
+  for (double level : {0.5, 1.0}) {
+    const cv::Mat t = downsample(tmpl, level), col = downsample(colour, level);
+    const double lx = double(t.cols) / tmpl.cols, ly = double(t.rows) / tmpl.rows;
+    cv::Matx23d ml = to_working(start, lx, ly);  // working grid → this level
+    cv::Mat warped, valid;
+    cv::warpAffine(col, warped, cv::Mat(ml), t.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP,
+                   cv::BORDER_CONSTANT, cv::Scalar::all(-1));
+    cv::Mat ones(col.size(), CV_8U, cv::Scalar(255));
+    cv::warpAffine(ones, valid, cv::Mat(ml), t.size(), cv::INTER_NEAREST | cv::WARP_INVERSE_MAP,
+                   cv::BORDER_CONSTANT, cv::Scalar(0));
+    double coef[kFeatures];
+    if (!fit_colour_to_ct(warped, valid, t, coef)) return std::nullopt;
+    const cv::Mat predicted = predict_ct(col, coef);
+    const cv::Matx23d before = ml;
+    // A wide blur widens the basin at half resolution; the final pass blurs less, as the
+    // polynomial is applied before the blur (edges mixing two tissues map imperfectly).
+    rho = ecc(t, predicted, ml, iterations, 1e-5, level < 1.0 ? 5 : 3);
+    if (rho < 0.0) return std::nullopt;
+    // A refinement that runs far from its start has diverged.
+    if (std::hypot(ml(0, 2) - before(0, 2), ml(1, 2) - before(1, 2)) >
+        0.1 * std::max(t.cols, t.rows))
+      return std::nullopt;
+    start = to_full(ml, lx, ly);
+  }
+  *rho_out = rho;
+  return start;
+}
+
+// Step 4 of the header: outline refinement, ECC of the soft body masks at full working
+// resolution from the multimodal result `m`. The body's outline is the one feature both
+// modalities show the same way; the intensity map of step 3 is not exact inside the body
+// (texture the CT does not resolve, tissues of one colour and two densities), which biases the
+// rotation of a small body by tenths of a degree. Kept when it converges near its start
+// (kOutlineReachPx, kOutlineTurnDeg); otherwise `m` is returned.
+cv::Matx23d refine_outline(const cv::Mat& soft_ct, const cv::Mat& soft_colour, const cv::Matx23d& m,
+                           int iterations) {
+  cv::Matx23d outline = m;
+  if (ecc(soft_ct, soft_colour, outline, 2 * iterations, 1e-7, 3) > 0.0 &&
+      std::hypot(outline(0, 2) - m(0, 2), outline(1, 2) - m(1, 2)) < kOutlineReachPx &&
+      std::abs(std::atan2(outline(1, 0), outline(0, 0)) - std::atan2(m(1, 0), m(0, 0))) <
+          kOutlineTurnDeg * kPi / 180.0)
+    return outline;
+  return m;
+}
+
 }  // namespace
 
 double anchor_working_scale(const Config& config) {
@@ -311,7 +412,7 @@ AnchorEstimate anchor_from_json(const nlohmann::json& j, const std::string& what
     a.radius_px = j.at("radius_px").get<double>();
     a.lever_px = j.value("lever_px", a.radius_px);
     a.sigma_px = j.at("sigma_px").get<double>();
-    a.parts_ct = j.value("parts_ct", 0);  // records before issue #30 have none
+    a.parts_ct = j.value("parts_ct", 0);  // older records (before the part counts) have none
     a.parts_colour = j.value("parts_colour", 0);
     if (!(a.confidence >= 0.0 && a.confidence <= 1.0) || !(a.sigma_px >= 0.0) ||
         !std::isfinite(a.transform.dx_px) || !std::isfinite(a.transform.dy_px) ||
@@ -336,23 +437,7 @@ AnchorEstimate estimate_ct_anchor(const RegisterFrame& frame, const cv::Mat& ct_
   const cv::Point2d c_full = image_centre(full);
   est.sigma_px = kSigmaWorkingPx / sx;
   // 1. Template: the CT on the working output grid.
-  cv::Mat ct32;
-  ct_hu.convertTo(ct32, CV_32F);
-  {
-    // Only the body takes part: what the CT shows around it (head-holder, table) has no
-    // counterpart in the colour slice and, beside a small body at the stack's ends, biases the
-    // alignment (rotation most). Everything outside the body (grown by one pixel, its partial-
-    // volume edge) becomes air; in that edge, what is denser than the threshold is not the
-    // body's partial volume but a holder or table touching it (an arm resting on the table):
-    // clamped to the threshold.
-    cv::Mat keep;
-    const cv::Mat body = ct_body_mask(ct32, options.hu_threshold, options.min_part_ct_px);
-    cv::dilate(body, keep, cv::getStructuringElement(cv::MORPH_ELLIPSE, cv::Size(3, 3)));
-    ct32.setTo(cv::Scalar(kHuLow), keep == 0);
-    const cv::Mat edge = keep & ~body;
-    cv::Mat clamped = cv::min(ct32, options.hu_threshold);
-    clamped.copyTo(ct32, edge);
-  }
+  const cv::Mat ct32 = ct_body_only(ct_hu, options);
   const cv::Matx23d out_to_ct =
       invert_affine(similarity_matrix(ct_to_rgb, image_centre(ct32.size()), c_full));
   cv::Mat ct_work;
@@ -364,31 +449,7 @@ AnchorEstimate estimate_ct_anchor(const RegisterFrame& frame, const cv::Mat& ct_
   const cv::Moments mo = cv::moments(body, true);
   est.body_fraction = mo.m00 / double(body.total());
   if (est.body_fraction < 1e-3) return est;  // nothing to anchor on
-  {
-    const double mx = mo.m10 / mo.m00, my = mo.m01 / mo.m00;
-    const double var_x = mo.m20 / mo.m00 - mx * mx, var_y = mo.m02 / mo.m00 - my * my;
-    // Radius of gyration in colour pixels (anisotropy of sx, sy is negligible).
-    est.radius_px = std::sqrt(std::max(0.0, var_x / (sx * sx) + var_y / (sy * sy)));
-    // The rotation's lever from the template's gradients about the centroid.
-    cv::Mat smooth, gx, gy;
-    cv::GaussianBlur(tmpl, smooth, cv::Size(0, 0), 1.0);
-    cv::Sobel(smooth, gx, CV_32F, 1, 0, 3);
-    cv::Sobel(smooth, gy, CV_32F, 0, 1, 3);
-    double it = 0, ir = 0;
-    for (int y = 0; y < gx.rows; ++y) {
-      const float* px = gx.ptr<float>(y);
-      const float* py = gy.ptr<float>(y);
-      for (int x = 0; x < gx.cols; ++x) {
-        const double tq = (x - mx) * py[x] - (y - my) * px[x];
-        it += 0.5 * (double(px[x]) * px[x] + double(py[x]) * py[x]);
-        ir += tq * tq;
-      }
-    }
-    est.lever_px = it > 0 ? std::sqrt(ir / it) / sx : 0.0;
-    const double radius_working = est.radius_px * sx;
-    est.sigma_px *=
-        std::sqrt(kSigmaRadiusWorkingPx / std::max(kSigmaRadiusWorkingPx, radius_working));
-  }
+  measure_body(tmpl, mo, sx, sy, est);
   // Working-grid template → input matrix.
   cv::Matx23d m;
   bool have = false;
@@ -404,40 +465,11 @@ AnchorEstimate estimate_ct_anchor(const RegisterFrame& frame, const cv::Mat& ct_
   }();
   const cv::Mat soft_colour =
       body_only(colour_softbody(colour), min_part_work, colour, &est.parts_colour);
-  auto fine = [&](cv::Matx23d start, double* rho_out) -> std::optional<cv::Matx23d> {
-    // Two passes: half working resolution, then full; the polynomial refitted before each.
-    double rho = -1.0;
-    for (double level : {0.5, 1.0}) {
-      const cv::Mat t = downsample(tmpl, level), col = downsample(colour, level);
-      const double lx = double(t.cols) / tmpl.cols, ly = double(t.rows) / tmpl.rows;
-      cv::Matx23d ml = to_working(start, lx, ly);  // working grid → this level
-      cv::Mat warped, valid;
-      cv::warpAffine(col, warped, cv::Mat(ml), t.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP,
-                     cv::BORDER_CONSTANT, cv::Scalar::all(-1));
-      cv::Mat ones(col.size(), CV_8U, cv::Scalar(255));
-      cv::warpAffine(ones, valid, cv::Mat(ml), t.size(), cv::INTER_NEAREST | cv::WARP_INVERSE_MAP,
-                     cv::BORDER_CONSTANT, cv::Scalar(0));
-      double coef[kFeatures];
-      if (!fit_colour_to_ct(warped, valid, t, coef)) return std::nullopt;
-      const cv::Mat predicted = predict_ct(col, coef);
-      const cv::Matx23d before = ml;
-      // A wide blur widens the basin at half resolution; the final pass blurs less, as the
-      // polynomial is applied before the blur (edges mixing two tissues map imperfectly).
-      rho = ecc(t, predicted, ml, options.iterations, 1e-5, level < 1.0 ? 5 : 3);
-      if (rho < 0.0) return std::nullopt;
-      // A refinement that runs far from its start has diverged.
-      if (std::hypot(ml(0, 2) - before(0, 2), ml(1, 2) - before(1, 2)) >
-          0.1 * std::max(t.cols, t.rows))
-        return std::nullopt;
-      start = to_full(ml, lx, ly);
-    }
-    *rho_out = rho;
-    return start;
-  };
   double rho = -1.0;
   if (initial) {
     m = to_working(rigid_matrix(*initial, c_full), sx, sy);
-    if (auto r = fine(m, &rho); r && rho > 0.5) m = *r, have = true;
+    if (auto r = refine_multimodal(tmpl, colour, m, options.iterations, &rho); r && rho > 0.5)
+      m = *r, have = true;
   }
   if (!have) {
     const cv::Mat st = downsample(soft_ct, capture_scale),
@@ -445,26 +477,13 @@ AnchorEstimate estimate_ct_anchor(const RegisterFrame& frame, const cv::Mat& ct_
     const double lx = double(st.cols) / tmpl.cols, ly = double(st.rows) / tmpl.rows;
     const std::optional<cv::Matx23d> cap = capture(st, sc);
     if (!cap) return est;
-    if (auto r = fine(to_full(*cap, lx, ly), &rho)) {
+    if (auto r = refine_multimodal(tmpl, colour, to_full(*cap, lx, ly), options.iterations, &rho)) {
       m = *r;
       have = true;
     }
   }
   if (!have) return est;
-  {
-    // 4. Outline refinement: ECC of the soft body masks at full working resolution from the
-    // multimodal result. The body's outline is the one feature both modalities show the same
-    // way; the intensity map of step 3 is not exact inside the body (texture the CT does not
-    // resolve, tissues of one colour and two densities), which biases the rotation of a small
-    // body by tenths of a degree. Kept when it converges near its start (kOutlineReachPx,
-    // kOutlineTurnDeg).
-    cv::Matx23d outline = m;
-    if (ecc(soft_ct, soft_colour, outline, 2 * options.iterations, 1e-7, 3) > 0.0 &&
-        std::hypot(outline(0, 2) - m(0, 2), outline(1, 2) - m(1, 2)) < kOutlineReachPx &&
-        std::abs(std::atan2(outline(1, 0), outline(0, 0)) - std::atan2(m(1, 0), m(0, 0))) <
-            kOutlineTurnDeg * kPi / 180.0)
-      m = outline;
-  }
+  m = refine_outline(soft_ct, soft_colour, m, options.iterations);
   est.transform = rigid_from_matrix(to_full(m, sx, sy), c_full);
   est.correlation = std::clamp(rho, 0.0, 1.0);
   est.confidence =

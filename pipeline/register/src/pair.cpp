@@ -12,6 +12,7 @@
 #include "vispack/common/hash.h"
 #include "vispack/common/math_constants.h"
 #include "vispack/common/parallel.h"
+#include "vispack/pipeline/imaging/transforms.h"
 #include "vispack/pipeline/register/ecc.h"
 #include "vispack/pipeline/register/rotation_search.h"
 
@@ -58,6 +59,76 @@ bool refine_fine(const RegisterFrame& from, const RegisterFrame& to, const Regis
   return false;
 }
 
+// Step 1 of estimate_pair, the coarse search: phase correlation at a rotation φ of the `to`
+// slice. The phase-correlation peak favours interpolated (smoother) images, so candidates are
+// ranked by the normalised correlation of the aligned images instead. Holds references to both
+// frames.
+class CoarseSearch {
+ public:
+  struct Candidate {
+    double angle, response, score;
+    cv::Point2d shift;  // coarse pixels, rotated frame: W(x) = c + R(φ)(x + s − c)
+  };
+
+  CoarseSearch(const RegisterFrame& from, const RegisterFrame& to)
+      : from_(from),
+        to_(to),
+        centre_(image_centre(from.full_size)),
+        cc_(image_centre(from.coarse.size())),
+        inner_(from.coarse.cols / 10, from.coarse.rows / 10, from.coarse.cols * 8 / 10,
+               from.coarse.rows * 8 / 10),
+        from_inner_(from.coarse(inner_)) {
+    cv::createHanningWindow(window_, from.coarse.size(), CV_32F);
+    // cv::phaseCorrelate multiplies its inputs by the window in place (OpenCV 4.6), so the
+    // window is applied here to copies and no window is passed.
+    from_windowed_ = from.coarse.mul(window_);
+  }
+
+  Candidate evaluate(double angle) const {
+    Candidate cand{angle, 0.0, -2.0, {}};
+    cv::Mat rotated = rotate_about_centre(to_.coarse, angle);
+    cand.shift =
+        cv::phaseCorrelate(from_windowed_, rotated.mul(window_), cv::noArray(), &cand.response);
+    const double a = angle * kPi / 180.0;
+    const cv::Point2d rs(std::cos(a) * cand.shift.x - std::sin(a) * cand.shift.y,
+                         std::sin(a) * cand.shift.x + std::cos(a) * cand.shift.y);
+    cv::Mat aligned;
+    cv::warpAffine(to_.coarse, aligned, cv::Mat(rigid_matrix({angle, rs.x, rs.y}, cc_)),
+                   from_.coarse.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP,
+                   cv::BORDER_REPLICATE);
+    cv::Mat score;
+    cv::matchTemplate(aligned(inner_), from_inner_, score, cv::TM_CCOEFF_NORMED);
+    cand.score = std::isfinite(score.at<float>(0, 0)) ? score.at<float>(0, 0) : -1.0;
+    return cand;
+  }
+
+  // The sweep over −10°..10°, refined by half steps and a parabola (register/rotation_search.h).
+  Candidate sweep() const {
+    return sweep_rotation([this](double angle) { return evaluate(angle); });
+  }
+
+  // A candidate as the full-resolution relative transform.
+  Rigid to_rigid(const Candidate& c) const {
+    const double a = c.angle * kPi / 180.0;
+    const cv::Point2d rs(std::cos(a) * c.shift.x - std::sin(a) * c.shift.y,
+                         std::sin(a) * c.shift.x + std::cos(a) * c.shift.y);
+    return rigid_from_matrix(
+        unscale_affine(rigid_matrix({c.angle, rs.x, rs.y}, cc_), from_.coarse_scale), centre_);
+  }
+
+  // Coarse ECC from a phase estimate; returns rho (−1 on failure) and updates `m`.
+  double coarse_ecc(cv::Matx23d& m) const {
+    return ecc_level(from_.coarse, to_.coarse, from_.coarse_scale, m, 30, 1e-4).value_or(-1.0);
+  }
+
+ private:
+  const RegisterFrame& from_;
+  const RegisterFrame& to_;
+  cv::Point2d centre_, cc_;
+  cv::Rect inner_;
+  cv::Mat from_inner_, window_, from_windowed_;
+};
+
 }  // namespace
 
 PairEstimate estimate_pair(const RegisterFrame& from, const RegisterFrame& to,
@@ -80,60 +151,12 @@ PairEstimate estimate_pair(const RegisterFrame& from, const RegisterFrame& to,
     if (refine_fine(from, to, options, *initial, rigid_matrix(*initial, centre), quick))
       return quick;
   }
-  // 1. Coarse: phase correlation at a rotation φ of the `to` slice. The phase-correlation peak
-  //    favours interpolated (smoother) images, so candidates are ranked by the normalised
-  //    correlation of the aligned images instead.
-  cv::Mat window;
-  cv::createHanningWindow(window, from.coarse.size(), CV_32F);
-  const cv::Point2d cc = image_centre(from.coarse.size());
-  const cv::Rect inner(from.coarse.cols / 10, from.coarse.rows / 10, from.coarse.cols * 8 / 10,
-                       from.coarse.rows * 8 / 10);
-  const cv::Mat from_inner = from.coarse(inner);
-  // cv::phaseCorrelate multiplies its inputs by the window in place (OpenCV 4.6), so the
-  // window is applied here to copies and no window is passed.
-  const cv::Mat from_windowed = from.coarse.mul(window);
-  struct Candidate {
-    double angle, response, score;
-    cv::Point2d shift;  // coarse pixels, rotated frame: W(x) = c + R(φ)(x + s − c)
-  };
-  auto evaluate = [&](double angle) {
-    Candidate cand{angle, 0.0, -2.0, {}};
-    cv::Mat rotated = rotate_about_centre(to.coarse, angle);
-    cand.shift =
-        cv::phaseCorrelate(from_windowed, rotated.mul(window), cv::noArray(), &cand.response);
-    const double a = angle * kPi / 180.0;
-    const cv::Point2d rs(std::cos(a) * cand.shift.x - std::sin(a) * cand.shift.y,
-                         std::sin(a) * cand.shift.x + std::cos(a) * cand.shift.y);
-    cv::Mat aligned;
-    cv::warpAffine(to.coarse, aligned, cv::Mat(rigid_matrix({angle, rs.x, rs.y}, cc)),
-                   from.coarse.size(), cv::INTER_LINEAR | cv::WARP_INVERSE_MAP,
-                   cv::BORDER_REPLICATE);
-    cv::Mat score;
-    cv::matchTemplate(aligned(inner), from_inner, score, cv::TM_CCOEFF_NORMED);
-    cand.score = std::isfinite(score.at<float>(0, 0)) ? score.at<float>(0, 0) : -1.0;
-    return cand;
-  };
-  auto to_rigid = [&](const Candidate& c) {
-    const double a = c.angle * kPi / 180.0;
-    const cv::Point2d rs(std::cos(a) * c.shift.x - std::sin(a) * c.shift.y,
-                         std::sin(a) * c.shift.x + std::cos(a) * c.shift.y);
-    return rigid_from_matrix(
-        unscale_affine(rigid_matrix({c.angle, rs.x, rs.y}, cc), from.coarse_scale), centre);
-  };
-  // The sweep over −10°..10°, refined by half steps and a parabola (register/rotation_search.h).
-  auto sweep = [&]() { return sweep_rotation(evaluate); };
-  // Coarse ECC from a phase estimate; returns rho (−1 on failure) and updates `m`.
-  auto coarse_ecc = [&](cv::Matx23d& m) {
-    return ecc_level(from.coarse, to.coarse, from.coarse_scale, m, 30, 1e-4).value_or(-1.0);
-  };
-  Candidate best{};
-  if (options.method == "phase") {
-    best = sweep();
-  } else {
-    best = evaluate(0.0);
-  }
+  // 1. Coarse: phase correlation (CoarseSearch), the sweep for method "phase", 0° otherwise.
+  const CoarseSearch search(from, to);
+  using Candidate = CoarseSearch::Candidate;
+  Candidate best = options.method == "phase" ? search.sweep() : search.evaluate(0.0);
   est.response = std::clamp(best.response, 0.0, 1.0);
-  est.relative = to_rigid(best);
+  est.relative = search.to_rigid(best);
   est.quality = std::clamp(best.score, 0.0, 1.0);
   if (options.method == "phase") return est;
 
@@ -141,14 +164,14 @@ PairEstimate estimate_pair(const RegisterFrame& from, const RegisterFrame& to,
   constexpr double kConfident = 0.85;
   Rigid start = est.relative;
   cv::Matx23d m = rigid_matrix(start, centre);
-  double rho_coarse = coarse_ecc(m);
+  double rho_coarse = search.coarse_ecc(m);
   if (rho_coarse < kConfident) {
-    Candidate swept = sweep();
-    cv::Matx23d m2 = rigid_matrix(to_rigid(swept), centre);
-    const double rho2 = coarse_ecc(m2);
+    Candidate swept = search.sweep();
+    cv::Matx23d m2 = rigid_matrix(search.to_rigid(swept), centre);
+    const double rho2 = search.coarse_ecc(m2);
     if (rho2 > rho_coarse || (rho_coarse < 0 && swept.score > best.score)) {
       best = swept;
-      start = to_rigid(swept);
+      start = search.to_rigid(swept);
       m = m2;
       rho_coarse = rho2;
       est.response = std::clamp(best.response, 0.0, 1.0);
@@ -224,6 +247,137 @@ SlicePairs slice_pairs_from_json(const nlohmann::json& j, const std::string& wha
   }
 }
 
+namespace {
+
+// compute_pairs' state between blocks: the prepared frames of the look-back window and the
+// record of every prepared slice (black / duplicate status, edges, anchor).
+struct PairState {
+  std::map<int, RegisterFrame> frames;
+  std::map<int, SlicePairs> status;
+};
+
+struct PairJob {
+  int from, to;
+};
+
+// Prepares the frames of slices [block, block_end) (in parallel) and records each one's black
+// and duplicate status (a duplicate: the same pixels as a usable slice within kLookBack).
+void prepare_block(PairState& st, int block, int block_end,
+                   const std::function<RegisterFrame(int)>& frame, int threads) {
+  std::vector<RegisterFrame> prepared(std::size_t(block_end - block));
+  parallel_for(block_end - block, threads,
+               [&](std::int64_t i) { prepared[std::size_t(i)] = frame(block + int(i)); });
+  for (int k = block; k < block_end; ++k) {
+    RegisterFrame& f = prepared[std::size_t(k - block)];
+    SlicePairs s;
+    s.index = k;
+    s.black = f.black;
+    s.pixel_hash = f.pixel_hash;
+    s.quality = s.black ? 0.0 : 1.0;
+    s.fiducials = f.fiducials;
+    if (!s.black) {
+      for (int j = k - 1; j >= std::max(0, k - kLookBack); --j) {
+        auto it = st.status.find(j);
+        if (it == st.status.end() || it->second.black) continue;
+        if (it->second.pixel_hash == s.pixel_hash && st.frames.at(j).full_size == f.full_size) {
+          s.duplicate_of = it->second.duplicate_of ? *it->second.duplicate_of : j;
+          break;
+        }
+      }
+    }
+    st.status[k] = s;
+    st.frames[k] = std::move(f);
+  }
+}
+
+// The edges of the block's usable slices: each one's edge from its previous usable slice
+// (`nearest`), and from the one before that (`skip`, only for slices from `first` on). The
+// look-back slices before `first` get their nearest edges too (not returned): the skip edges
+// into `first` start from them exactly as in an unsharded run, so shards reproduce the
+// unsharded records.
+void plan_edges(const PairState& st, int lo, int first, int block, int block_end,
+                std::vector<PairJob>& nearest, std::vector<PairJob>& skip) {
+  for (int k = std::max(lo, block); k < block_end; ++k) {
+    const SlicePairs& s = st.status.at(k);
+    if (s.black || s.duplicate_of) continue;
+    int found = 0;
+    for (int j = k - 1; j >= std::max(lo, k - kLookBack) && found < 2; --j) {
+      const SlicePairs& p = st.status.at(j);
+      if (p.black || p.duplicate_of) continue;
+      if (found == 0) {
+        nearest.push_back({j, k});
+      } else if (k >= first) {
+        skip.push_back({j, k});
+      }
+      ++found;
+    }
+  }
+}
+
+void record_edge(PairState& st, const PairJob& job, const PairEstimate& r) {
+  SlicePairs& s = st.status[job.to];
+  const bool is_nearest = s.edges.empty();  // nearest edges are recorded first
+  s.edges.push_back({job.from, job.to, r.relative, r.ecc_ok ? 1.0 : 0.05});
+  if (is_nearest) s.quality = r.quality;
+}
+
+// A skip edge's start: the measured edges i→k and j→i (i = k's nearest usable predecessor)
+// composed, where both were measured well.
+std::optional<Rigid> composed_start(const PairState& st, const PairJob& job) {
+  const SlicePairs& sk = st.status.at(job.to);
+  if (sk.edges.empty() || sk.edges[0].weight < 1.0) return std::nullopt;
+  const int i = sk.edges[0].from;
+  auto it = st.status.find(i);
+  if (it == st.status.end() || it->second.edges.empty()) return std::nullopt;
+  const PairEdge& ji = it->second.edges[0];
+  if (ji.from != job.from || ji.weight < 1.0) return std::nullopt;
+  const cv::Point2d c = image_centre(st.frames.at(job.to).full_size);
+  return rigid_from_matrix(
+      compose_affine(rigid_matrix(sk.edges[0].relative, c), rigid_matrix(ji.relative, c)), c);
+}
+
+// Measures the edges (in parallel) and records them: first every nearest edge (the full
+// search), then the skip edges, each started from the composition of two measured neighbour
+// edges where there is one.
+void measure_edges(PairState& st, const std::vector<PairJob>& nearest,
+                   const std::vector<PairJob>& skip, const RegisterOptions& options, int threads) {
+  std::vector<PairEstimate> results(nearest.size());
+  parallel_for(std::int64_t(nearest.size()), threads, [&](std::int64_t i) {
+    const PairJob& job = nearest[std::size_t(i)];
+    results[std::size_t(i)] = estimate_pair(st.frames.at(job.from), st.frames.at(job.to), options);
+  });
+  for (std::size_t i = 0; i < nearest.size(); ++i)
+    record_edge(st, nearest[i], results[i]);
+  results.assign(skip.size(), PairEstimate{});
+  parallel_for(std::int64_t(skip.size()), threads, [&](std::int64_t i) {
+    const PairJob& job = skip[std::size_t(i)];
+    const std::optional<Rigid> start = composed_start(st, job);
+    results[std::size_t(i)] = estimate_pair(st.frames.at(job.from), st.frames.at(job.to), options,
+                                            start ? &*start : nullptr);
+  });
+  for (std::size_t i = 0; i < skip.size(); ++i)
+    record_edge(st, skip[i], results[i]);
+}
+
+// The CT anchors of the usable slices [from, to) (in parallel).
+void measure_anchors(
+    PairState& st, int from, int to,
+    const std::function<std::optional<AnchorEstimate>(int, const RegisterFrame&)>& anchor,
+    int threads) {
+  std::vector<int> todo;
+  for (int k = from; k < to; ++k)
+    if (!st.status[k].black) todo.push_back(k);
+  std::vector<std::optional<AnchorEstimate>> found(todo.size());
+  parallel_for(std::int64_t(todo.size()), threads, [&](std::int64_t i) {
+    const int k = todo[std::size_t(i)];
+    found[std::size_t(i)] = anchor(k, st.frames.at(k));
+  });
+  for (std::size_t i = 0; i < todo.size(); ++i)
+    st.status[todo[i]].anchor = found[i];
+}
+
+}  // namespace
+
 std::vector<SlicePairs> compute_pairs(
     int first, int last, const std::function<RegisterFrame(int)>& frame,
     const RegisterOptions& options, int threads,
@@ -233,113 +387,22 @@ std::vector<SlicePairs> compute_pairs(
   const int lo = std::max(0, first - kLookBack);
   // Frames are prepared in blocks so memory stays bounded by the block (plus the look-back).
   constexpr int kBlock = 32;
-  std::map<int, RegisterFrame> frames;
-  std::map<int, SlicePairs> status;  // black / duplicate status of every prepared slice
+  PairState st;
   out.reserve(std::size_t(last - first));
   for (int block = lo; block < last; block += kBlock) {
     const int block_end = std::min(last, block + kBlock);
-    std::vector<RegisterFrame> prepared(std::size_t(block_end - block));
-    parallel_for(block_end - block, threads,
-                 [&](std::int64_t i) { prepared[std::size_t(i)] = frame(block + int(i)); });
-    for (int k = block; k < block_end; ++k) {
-      RegisterFrame& f = prepared[std::size_t(k - block)];
-      SlicePairs s;
-      s.index = k;
-      s.black = f.black;
-      s.pixel_hash = f.pixel_hash;
-      s.quality = s.black ? 0.0 : 1.0;
-      s.fiducials = f.fiducials;
-      if (!s.black) {
-        for (int j = k - 1; j >= std::max(0, k - kLookBack); --j) {
-          auto it = status.find(j);
-          if (it == status.end() || it->second.black) continue;
-          if (it->second.pixel_hash == s.pixel_hash && frames.at(j).full_size == f.full_size) {
-            s.duplicate_of = it->second.duplicate_of ? *it->second.duplicate_of : j;
-            break;
-          }
-        }
-      }
-      status[k] = s;
-      frames[k] = std::move(f);
-    }
-    // Edges of the block's slices inside [first, last): first every slice's edge from its
-    // previous usable slice (the full search), then the skip edges from the one before, each
-    // started from the composition of two measured neighbour edges where there is one.
-    struct Job {
-      int from, to;
-    };
-    // The look-back slices before `first` get their nearest edges too (not returned): the
-    // skip edges into `first` start from them exactly as in an unsharded run, so shards
-    // reproduce the unsharded records.
-    std::vector<Job> nearest, skip;
-    for (int k = std::max(lo, block); k < block_end; ++k) {
-      const SlicePairs& s = status[k];
-      if (s.black || s.duplicate_of) continue;
-      int found = 0;
-      for (int j = k - 1; j >= std::max(lo, k - kLookBack) && found < 2; --j) {
-        const SlicePairs& p = status.at(j);
-        if (p.black || p.duplicate_of) continue;
-        if (found == 0) {
-          nearest.push_back({j, k});
-        } else if (k >= first) {
-          skip.push_back({j, k});
-        }
-        ++found;
-      }
-    }
-    auto record = [&](const Job& job, const PairEstimate& r) {
-      SlicePairs& s = status[job.to];
-      const bool is_nearest = s.edges.empty();  // nearest edges are recorded first
-      s.edges.push_back({job.from, job.to, r.relative, r.ecc_ok ? 1.0 : 0.05});
-      if (is_nearest) s.quality = r.quality;
-    };
-    std::vector<PairEstimate> results(nearest.size());
-    parallel_for(std::int64_t(nearest.size()), threads, [&](std::int64_t i) {
-      const Job& job = nearest[std::size_t(i)];
-      results[std::size_t(i)] = estimate_pair(frames.at(job.from), frames.at(job.to), options);
-    });
-    for (std::size_t i = 0; i < nearest.size(); ++i)
-      record(nearest[i], results[i]);
-    // The measured edge i→k and j→i (i = k's nearest usable predecessor) compose to a start.
-    auto composed = [&](const Job& job) -> std::optional<Rigid> {
-      const SlicePairs& sk = status.at(job.to);
-      if (sk.edges.empty() || sk.edges[0].weight < 1.0) return std::nullopt;
-      const int i = sk.edges[0].from;
-      auto it = status.find(i);
-      if (it == status.end() || it->second.edges.empty()) return std::nullopt;
-      const PairEdge& ji = it->second.edges[0];
-      if (ji.from != job.from || ji.weight < 1.0) return std::nullopt;
-      const cv::Point2d c = image_centre(frames.at(job.to).full_size);
-      return rigid_from_matrix(
-          compose_affine(rigid_matrix(sk.edges[0].relative, c), rigid_matrix(ji.relative, c)), c);
-    };
-    results.assign(skip.size(), PairEstimate{});
-    parallel_for(std::int64_t(skip.size()), threads, [&](std::int64_t i) {
-      const Job& job = skip[std::size_t(i)];
-      const std::optional<Rigid> start = composed(job);
-      results[std::size_t(i)] =
-          estimate_pair(frames.at(job.from), frames.at(job.to), options, start ? &*start : nullptr);
-    });
-    for (std::size_t i = 0; i < skip.size(); ++i)
-      record(skip[i], results[i]);
+    prepare_block(st, block, block_end, frame, threads);
+    // Edges of the block's slices inside [first, last).
+    std::vector<PairJob> nearest, skip;
+    plan_edges(st, lo, first, block, block_end, nearest, skip);
+    measure_edges(st, nearest, skip, options, threads);
     // CT anchors of the block's slices inside [first, last).
-    if (anchor) {
-      std::vector<int> todo;
-      for (int k = std::max(first, block); k < block_end; ++k)
-        if (!status[k].black) todo.push_back(k);
-      std::vector<std::optional<AnchorEstimate>> found(todo.size());
-      parallel_for(std::int64_t(todo.size()), threads, [&](std::int64_t i) {
-        const int k = todo[std::size_t(i)];
-        found[std::size_t(i)] = anchor(k, frames.at(k));
-      });
-      for (std::size_t i = 0; i < todo.size(); ++i)
-        status[todo[i]].anchor = found[i];
-    }
+    if (anchor) measure_anchors(st, std::max(first, block), block_end, anchor, threads);
     for (int k = std::max(first, block); k < block_end; ++k)
-      out.push_back(status[k]);
+      out.push_back(st.status[k]);
     // Keep only the look-back window of frames.
-    while (!frames.empty() && frames.begin()->first < block_end - kLookBack)
-      frames.erase(frames.begin());
+    while (!st.frames.empty() && st.frames.begin()->first < block_end - kLookBack)
+      st.frames.erase(st.frames.begin());
   }
   return out;
 }

@@ -1,5 +1,6 @@
 // QC pictures of the register stage. See register/qc.h.
 #include "vispack/pipeline/register/qc.h"
+#include "vispack/pipeline/imaging/transforms.h"
 
 #include <algorithm>
 #include <cmath>

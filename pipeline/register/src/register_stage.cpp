@@ -17,11 +17,11 @@
 #include "vispack/pipeline/core/layout_check.h"
 #include "vispack/pipeline/core/output_frame.h"
 #include "vispack/pipeline/core/slice_z.h"
-#include "vispack/pipeline/core/transforms.h"
 #include "vispack/pipeline/core/work_layout.h"
 #include "vispack/pipeline/imaging/intermediates.h"
 #include "vispack/pipeline/imaging/opencv_threads.h"
 #include "vispack/pipeline/imaging/slice_io.h"
+#include "vispack/pipeline/imaging/transforms.h"
 #include "vispack/pipeline/register/register.h"
 #include "vispack/pipeline/register/register_stage.h"
 
@@ -496,10 +496,10 @@ void write_slice_outputs(RegisterRun& r, const StackTransforms& st, const StackI
   if (!kept.empty() && !write_registered) {
     // The overlay warped from the kept picture: the same slice, transform and outline as
     // below, without decoding and warping the full-size slice again.
-    const cv::Mat registered_small = warp_picture(kept, t.rigid, inputs.size());
+    const cv::Mat registered_small = warp_picture(kept, t.rigid, grid_size(inputs.transforms));
     write_work_image(overlay,
                      draw_ct_overlay(registered_small, hu, ct_to_rgb, config.mask.hu_threshold,
-                                     kOverlayEdge, inputs.size()));
+                                     kOverlayEdge, grid_size(inputs.transforms)));
     run.done(k, in, outs, 0);
     return;
   }

@@ -3,7 +3,7 @@
 
 #include <opencv2/imgproc.hpp>
 
-#include "vispack/pipeline/core/transforms.h"
+#include "vispack/pipeline/imaging/transforms.h"
 
 namespace vispack::pipeline {
 

@@ -10,6 +10,7 @@
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
 #include "vispack/common/math_constants.h"
+#include "vispack/pipeline/imaging/transforms.h"
 
 namespace vispack::pipeline {
 namespace {
@@ -238,48 +239,103 @@ constexpr double kFiducialWeight = 25.0;     // weight of a fiducial edge (a pai
 constexpr double kFiducialResidualPx = 1.0;  // largest misfit of one fiducial in a group fit
 constexpr double kFiducialAgreePx = 10.0;    // a fit further than this from the chain is dropped
 
-std::vector<PairEdge> fiducial_edges(const std::vector<SlicePairs>& pairs,
-                                     const std::vector<Rigid>& t, cv::Size size, int* groups) {
+// The fiducials of every usable slice followed on the output grid slice by slice (through the
+// pair-edge-only solution `t`): per slice, the (track, fiducial position) pairs it sees; per
+// track, on how many slices it was seen.
+struct FiducialTracks {
+  std::vector<std::vector<std::pair<int, cv::Point2d>>> seen;  // [slice] → (track, p)
+  std::vector<int> length;                                     // [track] → slices seen on
+  // Where slice k sees `track` (input pixels); (0, 0) when it does not.
+  cv::Point2d point_of(int k, int track) const {
+    for (const auto& s : seen[std::size_t(k)])
+      if (s.first == track) return s.second;
+    return cv::Point2d();
+  }
+};
+
+FiducialTracks follow_tracks(const std::vector<SlicePairs>& pairs, const std::vector<Rigid>& t,
+                             cv::Point2d c) {
   const int n = int(pairs.size());
-  const cv::Point2d c = image_centre(size);
-  auto usable = [&](int k) { return !pairs[k].black && !pairs[k].duplicate_of; };
-  // Tracks on the output grid, followed slice by slice.
-  struct Track {
-    cv::Point2d last;
-    int length = 0;
-  };
-  std::vector<Track> tracks;
-  std::vector<std::vector<std::pair<int, cv::Point2d>>> seen(
-      static_cast<std::size_t>(n));  // (track, p)
+  std::vector<cv::Point2d> last;  // [track] → its latest position on the output grid
+  FiducialTracks tracks;
+  tracks.seen.resize(static_cast<std::size_t>(n));
   for (int k = 0; k < n; ++k) {
-    if (!usable(k)) continue;
+    if (pairs[k].black || pairs[k].duplicate_of) continue;
     const cv::Matx23d to_output = invert_affine(rigid_matrix(t[std::size_t(k)], c));
-    std::vector<bool> taken(tracks.size(), false);
+    std::vector<bool> taken(last.size(), false);
     for (const auto& p : pairs[std::size_t(k)].fiducials) {
       const cv::Point2d q = apply(to_output, p);
       int best = -1;
       double best_d = kTrackPx;
-      for (std::size_t i = 0; i < tracks.size(); ++i) {
-        const double d = std::hypot(tracks[i].last.x - q.x, tracks[i].last.y - q.y);
+      for (std::size_t i = 0; i < last.size(); ++i) {
+        const double d = std::hypot(last[i].x - q.x, last[i].y - q.y);
         if (!taken[i] && d < best_d) best = int(i), best_d = d;
       }
       if (best < 0) {
-        best = int(tracks.size());
-        tracks.push_back({q, 0});
+        best = int(last.size());
+        last.push_back(q);
+        tracks.length.push_back(0);
         taken.push_back(false);
       }
       taken[std::size_t(best)] = true;
-      tracks[std::size_t(best)].last = q;
-      ++tracks[std::size_t(best)].length;
-      seen[std::size_t(k)].push_back({best, p});
+      last[std::size_t(best)] = q;
+      ++tracks.length[std::size_t(best)];
+      tracks.seen[std::size_t(k)].push_back({best, p});
     }
   }
+  return tracks;
+}
+
+// One group's fiducial edges (from free node `node`): slices `slices` that all see the long
+// tracks `key`. Each slice's fiducials are fitted rigidly to the group frame (the mean
+// output-grid position of each track over the group); a slice whose fit leaves a residual or
+// disagrees with the pair chain gets no edge.
+std::vector<PairEdge> group_edges(const FiducialTracks& tracks, const std::vector<int>& key,
+                                  const std::vector<int>& slices, const std::vector<Rigid>& t,
+                                  cv::Size size, int node) {
+  const cv::Point2d c = image_centre(size);
+  std::vector<cv::Point2d> frame(key.size(), cv::Point2d(0, 0));
+  for (int k : slices) {
+    const cv::Matx23d to_output = invert_affine(rigid_matrix(t[std::size_t(k)], c));
+    for (std::size_t i = 0; i < key.size(); ++i)
+      frame[i] += apply(to_output, tracks.point_of(k, key[i]));
+  }
+  for (auto& f : frame)
+    f *= 1.0 / double(slices.size());
+  std::vector<PairEdge> group;
+  for (int k : slices) {
+    std::vector<cv::Point2d> observed;
+    for (int track : key)
+      observed.push_back(tracks.point_of(k, track));
+    const cv::Matx23d fit_m = fit_rigid(frame, observed);
+    // Fiducials are rigid: one that moved against the others (debris, a mismatch) shows as
+    // a residual of the fit; such a slice gets no fiducial edge.
+    double residual = 0.0;
+    for (std::size_t i = 0; i < frame.size(); ++i) {
+      const cv::Point2d d = apply(fit_m, frame[i]) - observed[i];
+      residual = std::max(residual, std::hypot(d.x, d.y));
+    }
+    if (residual > kFiducialResidualPx) continue;
+    const Rigid fit = rigid_from_matrix(fit_m, c);
+    // Agreement with the pair chain (the group frame is close to the output grid).
+    const cv::Matx23d diff =
+        compose_affine(rigid_matrix(fit, c), invert_affine(rigid_matrix(t[std::size_t(k)], c)));
+    if (rigid_motion_px(rigid_from_matrix(diff, c), size) > kFiducialAgreePx) continue;
+    group.push_back({node, k, fit, kFiducialWeight});
+  }
+  return group;
+}
+
+std::vector<PairEdge> fiducial_edges(const std::vector<SlicePairs>& pairs,
+                                     const std::vector<Rigid>& t, cv::Size size, int* groups) {
+  const int n = int(pairs.size());
+  const FiducialTracks tracks = follow_tracks(pairs, t, image_centre(size));
   // Groups: slices seeing the same set (>= 2) of long tracks.
   std::map<std::vector<int>, std::vector<int>> members;
   for (int k = 0; k < n; ++k) {
     std::vector<int> key;
-    for (const auto& s : seen[std::size_t(k)])
-      if (tracks[std::size_t(s.first)].length >= kMinTrackLength) key.push_back(s.first);
+    for (const auto& s : tracks.seen[std::size_t(k)])
+      if (tracks.length[std::size_t(s.first)] >= kMinTrackLength) key.push_back(s.first);
     std::sort(key.begin(), key.end());
     if (key.size() >= 2) members[key].push_back(k);
   }
@@ -287,41 +343,7 @@ std::vector<PairEdge> fiducial_edges(const std::vector<SlicePairs>& pairs,
   int g = 0;
   for (const auto& [key, slices] : members) {
     if (int(slices.size()) < kMinTrackLength) continue;
-    // The group frame: the mean output-grid position of each track over the group.
-    std::vector<cv::Point2d> frame(key.size(), cv::Point2d(0, 0));
-    auto point_of = [&](int k, int track) {
-      for (const auto& s : seen[std::size_t(k)])
-        if (s.first == track) return s.second;
-      return cv::Point2d();
-    };
-    for (int k : slices) {
-      const cv::Matx23d to_output = invert_affine(rigid_matrix(t[std::size_t(k)], c));
-      for (std::size_t i = 0; i < key.size(); ++i)
-        frame[i] += apply(to_output, point_of(k, key[i]));
-    }
-    for (auto& f : frame)
-      f *= 1.0 / double(slices.size());
-    std::vector<PairEdge> group;
-    for (int k : slices) {
-      std::vector<cv::Point2d> observed;
-      for (int track : key)
-        observed.push_back(point_of(k, track));
-      const cv::Matx23d fit_m = fit_rigid(frame, observed);
-      // Fiducials are rigid: one that moved against the others (debris, a mismatch) shows as
-      // a residual of the fit; such a slice gets no fiducial edge.
-      double residual = 0.0;
-      for (std::size_t i = 0; i < frame.size(); ++i) {
-        const cv::Point2d d = apply(fit_m, frame[i]) - observed[i];
-        residual = std::max(residual, std::hypot(d.x, d.y));
-      }
-      if (residual > kFiducialResidualPx) continue;
-      const Rigid fit = rigid_from_matrix(fit_m, c);
-      // Agreement with the pair chain (the group frame is close to the output grid).
-      const cv::Matx23d diff =
-          compose_affine(rigid_matrix(fit, c), invert_affine(rigid_matrix(t[std::size_t(k)], c)));
-      if (rigid_motion_px(rigid_from_matrix(diff, c), size) > kFiducialAgreePx) continue;
-      group.push_back({n + g, k, fit, kFiducialWeight});
-    }
+    const std::vector<PairEdge> group = group_edges(tracks, key, slices, t, size, n + g);
     if (group.size() < 2) continue;
     edges.insert(edges.end(), group.begin(), group.end());
     ++g;

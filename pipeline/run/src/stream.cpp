@@ -11,6 +11,7 @@
 #include "vispack/pipeline/core/work_layout.h"
 #include "vispack/pipeline/imaging/intermediates.h"
 #include "vispack/pipeline/imaging/opencv_threads.h"
+#include "vispack/pipeline/imaging/transforms.h"
 #include "vispack/pipeline/labels/labels_stage.h"
 #include "vispack/pipeline/mask/mask_stage.h"
 #include "vispack/pipeline/pack/pack.h"
@@ -81,7 +82,7 @@ void ordered_pipeline(int n, int threads, int window, const std::function<SliceP
 std::vector<StageResult> run_stream(const Config& config, const StageOptions& options) {
   const StackInputs inputs = read_stack_inputs(config);
   const int n = int(inputs.rgb.size());
-  const cv::Size size = inputs.size();
+  const cv::Size size = grid_size(inputs.transforms);
   MaskStageJob mask(config, inputs, options);
   const SliceRange range = mask.run().range();  // options.slices, or the whole stack
   std::unique_ptr<LabelsStageJob> labels;

@@ -1,4 +1,5 @@
-// vispack-labels: segmentation slices -> label IDs on the output grid (pipeline/labels.h).
+// vispack-labels: segmentation slices -> label IDs on the output grid
+// (pipeline/labels/labels_stage.h).
 #include "vispack/pipeline/labels/labels_stage.h"
 
 int main(int argc, char** argv) {

@@ -1,4 +1,4 @@
-// vispack-run: every pipeline stage in order, skipping what is up to date (pipeline/run.h).
+// vispack-run: every pipeline stage in order, skipping what is up to date (pipeline/run/run.h).
 #include <iostream>
 
 #include "vispack/common/cli.h"

@@ -1,4 +1,4 @@
-// vispack-vdb: see pipeline/vdb.h.
+// vispack-vdb: see pipeline/vdb/vdb.h.
 #include "vispack/pipeline/vdb/vdb.h"
 
 int main(int argc, char** argv) {

@@ -25,60 +25,54 @@ std::string mb(double bytes) {
   return text;
 }
 
-}  // namespace
-
-double vdb_bytes_per_leaf(const format::Reader& reader) {
-  double bytes = kVdbLeafBytesVec3s;
-  if (reader.find_channel("ct")) bytes += kVdbLeafBytesFloat;
-  if (reader.find_channel("labels")) bytes += kVdbLeafBytesInt32;
-  return bytes;
+// The voxel extent of brick b along `axis` of a level (edge voxels, less at the far edge).
+std::int64_t brick_extent(const format::LevelInfo& info, std::int64_t edge, int axis,
+                          std::int64_t b) {
+  return std::min(edge, info.dims[axis] - b * edge);
 }
 
-VdbLevelEstimate estimate_vdb_level(const format::Reader& reader, int level, int threads,
-                                    double stop_above_bytes, std::uint64_t earlier_resident_bytes) {
-  const int channel = rgba_channel(reader);
-  const format::LevelInfo& info = reader.level(level);
-  VdbLevelEstimate est;
-  est.level = level;
-  est.dims = info.dims;
-  est.spacing_mm = info.spacing_mm;
-  const double per_leaf = vdb_bytes_per_leaf(reader);
-  const std::int64_t edge = reader.brick_edge();
-  const auto& grid = info.bricks;
-  auto extent = [&](int axis, std::int64_t b) {
-    return std::min(edge, info.dims[axis] - b * edge);
-  };
-
+// The stored bytes of every brick of the level, all channels (what the export maps).
+std::uint64_t level_stored_bytes(const format::Reader& reader, int level) {
+  const auto& grid = reader.level(level).bricks;
+  std::uint64_t bytes = 0;
   for (int c = 0; c < int(reader.channels().size()); ++c)
     for (std::int64_t bz = 0; bz < grid[2]; ++bz)
       for (std::int64_t by = 0; by < grid[1]; ++by)
         for (std::int64_t bx = 0; bx < grid[0]; ++bx)
-          est.mapped_bytes += reader.brick(c, level, bx, by, bz).stored_size;
-  const double fixed = kVdbFixedBytes + double(est.mapped_bytes) + double(earlier_resident_bytes);
+          bytes += reader.brick(c, level, bx, by, bz).stored_size;
+  return bytes;
+}
 
-  if (stop_above_bytes > 0) {
-    // Lower bound without decoding: the voxels of uniform bricks that lie wholly inside the body
-    // fill at least voxels / 512 leaves.
-    std::uint64_t inside = 0;
-    for (std::int64_t bz = 0; bz < grid[2]; ++bz)
-      for (std::int64_t by = 0; by < grid[1]; ++by)
-        for (std::int64_t bx = 0; bx < grid[0]; ++bx) {
-          const format::BrickInfo& b = reader.brick(channel, level, bx, by, bz);
-          if (b.codec == format::Codec::kUniform && b.uniform[3] > 0)
-            inside += std::uint64_t(extent(0, bx) * extent(1, by) * extent(2, bz));
-        }
-    est.active_voxels = inside;
-    est.leaves = (inside + 511) / 512;
-    est.bytes = fixed + double(est.leaves) * per_leaf;
-    if (est.bytes > stop_above_bytes) {
-      est.exact = false;
-      return est;
-    }
-  }
+// Lower bound on the active voxels without decoding: the voxels of uniform bricks (of the rgba
+// `channel`) that lie wholly inside the body.
+std::uint64_t uniform_inside_voxels(const format::Reader& reader, int channel, int level) {
+  const format::LevelInfo& info = reader.level(level);
+  const std::int64_t edge = reader.brick_edge();
+  const auto& grid = info.bricks;
+  std::uint64_t inside = 0;
+  for (std::int64_t bz = 0; bz < grid[2]; ++bz)
+    for (std::int64_t by = 0; by < grid[1]; ++by)
+      for (std::int64_t bx = 0; bx < grid[0]; ++bx) {
+        const format::BrickInfo& b = reader.brick(channel, level, bx, by, bz);
+        if (b.codec == format::Codec::kUniform && b.uniform[3] > 0)
+          inside +=
+              std::uint64_t(brick_extent(info, edge, 0, bx) * brick_extent(info, edge, 1, by) *
+                            brick_extent(info, edge, 2, bz));
+      }
+  return inside;
+}
 
-  // One flag per 8^3 leaf of the level. Bricks are multiples of 8 voxels (pack.brick_edge is a
-  // power of two >= 8), so no leaf straddles two bricks and rows of bricks may run in parallel;
-  // another edge would let two rows write one flag, so it runs on one thread.
+// The exact count: decodes the bricks on the body's edge and sets est's active_voxels,
+// scanned_bytes and leaves. One flag per 8^3 leaf of the level. Bricks are multiples of 8
+// voxels (pack.brick_edge is a power of two >= 8), so no leaf straddles two bricks and rows of
+// bricks may run in parallel; another edge would let two rows write one flag, so it runs on one
+// thread.
+void count_active_leaves(const format::Reader& reader, int channel, int level, int threads,
+                         VdbLevelEstimate& est) {
+  const format::LevelInfo& info = reader.level(level);
+  const std::int64_t edge = reader.brick_edge();
+  const auto& grid = info.bricks;
+  auto extent = [&](int axis, std::int64_t b) { return brick_extent(info, edge, axis, b); };
   const std::array<std::int64_t, 3> leaf_dims = {(info.dims[0] + 7) / 8, (info.dims[1] + 7) / 8,
                                                  (info.dims[2] + 7) / 8};
   std::vector<std::uint8_t> touched(std::size_t(leaf_dims[0] * leaf_dims[1] * leaf_dims[2]), 0);
@@ -122,6 +116,41 @@ VdbLevelEstimate estimate_vdb_level(const format::Reader& reader, int level, int
   est.active_voxels = active.load();
   est.scanned_bytes = scanned.load();
   est.leaves = std::uint64_t(std::count(touched.begin(), touched.end(), std::uint8_t(1)));
+}
+
+}  // namespace
+
+double vdb_bytes_per_leaf(const format::Reader& reader) {
+  double bytes = kVdbLeafBytesVec3s;
+  if (reader.find_channel("ct")) bytes += kVdbLeafBytesFloat;
+  if (reader.find_channel("labels")) bytes += kVdbLeafBytesInt32;
+  return bytes;
+}
+
+VdbLevelEstimate estimate_vdb_level(const format::Reader& reader, int level, int threads,
+                                    double stop_above_bytes, std::uint64_t earlier_resident_bytes) {
+  const int channel = rgba_channel(reader);
+  const format::LevelInfo& info = reader.level(level);
+  VdbLevelEstimate est;
+  est.level = level;
+  est.dims = info.dims;
+  est.spacing_mm = info.spacing_mm;
+  const double per_leaf = vdb_bytes_per_leaf(reader);
+  est.mapped_bytes = level_stored_bytes(reader, level);
+  const double fixed = kVdbFixedBytes + double(est.mapped_bytes) + double(earlier_resident_bytes);
+  if (stop_above_bytes > 0) {
+    // Lower bound without decoding: uniform bricks wholly inside the body fill at least
+    // voxels / 512 leaves.
+    const std::uint64_t inside = uniform_inside_voxels(reader, channel, level);
+    est.active_voxels = inside;
+    est.leaves = (inside + 511) / 512;
+    est.bytes = fixed + double(est.leaves) * per_leaf;
+    if (est.bytes > stop_above_bytes) {
+      est.exact = false;
+      return est;
+    }
+  }
+  count_active_leaves(reader, channel, level, threads, est);
   est.bytes = fixed + double(est.leaves) * per_leaf;
   return est;
 }

@@ -93,9 +93,9 @@ class PackedSource final : public VolumeSource {
   }
 
  private:
-  // Checks the xxHash64 of every stored brick payload the region touches (issue 7: a brick that
-  // fails its checksum is reported, never shown as garbage). Throws FormatError naming the
-  // file, channel, level and brick. Cheap next to decoding (xxHash64 runs at memory speed).
+  // Checks the xxHash64 of every stored brick payload the region touches (docs/RELIABILITY.md: a
+  // brick that fails its checksum is reported, never shown as garbage). Throws FormatError naming
+  // the file, channel, level and brick. Cheap next to decoding (xxHash64 runs at memory speed).
   void verify_bricks(int idx, int level, const Region& r) const {
     const std::int64_t e = reader_.brick_edge();
     for (std::int64_t bz = r.offset[2] / e; bz * e < r.offset[2] + r.size[2]; ++bz)

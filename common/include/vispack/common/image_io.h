@@ -1,6 +1,6 @@
 // The one image writer of the project: PNG, TIFF, JPEG or BMP by the file's extension, through
 // OpenImageIO, encoded in memory and written atomically (AtomicFile: the file appears complete
-// or not at all). Used by the pipeline's intermediates (pipeline/slice_io.h wraps it for
+// or not at all). Used by the pipeline's intermediates (pipeline/imaging/slice_io.h wraps it for
 // cv::Mat), vispack-extract and the viewer's screenshots. Library `vispack_image_io`, built
 // where OpenImageIO is found; it does not pull OpenImageIO into vispack_common.
 // Thread-safe: no shared state (OpenImageIO's writers are independent objects).

@@ -2,17 +2,16 @@
 // fresh anonymous pages (mmap), which the kernel maps to its one zero page until first written,
 // that remember which of them hold only zero bytes. Writing zeros onto a page known to be zero is
 // skipped, so such a page is never touched: no page fault, no memory. Outside the body a slice's
-// colour and labels are zero (the pack zeroes the gel, issue 12): about 40 % of the 4 KiB pages
-// of a 2048x1216 slice of the real-size stack, whose slab (~1.1 GB) was otherwise all faulted in
-// on its first fill, and on a machine whose fresh pages are dear (a VM returning free memory to
-// its host: docs/BENCHMARKS.md "Fresh memory") that cost about what zstd takes to compress the
-// whole slab. Reading is plain memory access (untouched pages read as zero), but a read faults an
-// untouched page in too (and on a kernel without a shared zero page, pvm_no_zero_page, allocates
-// and clears it): readers that can skip zeros ask known_zero() first (the format's brick gather
-// and 2x2x2 reduction do).
-// Ownership: RAII (munmap). Thread-safety: write() and write_narrowed() may run at once on ranges
-// that share no page (page_size() granularity, offsets from data()); reads of data() must not
-// overlap a write.
+// colour and labels are zero (the pack zeroes the gel, docs/ARCHITECTURE.md, 'The packed file'):
+// about 40 % of the 4 KiB pages of a 2048x1216 slice of the real-size stack, whose slab (~1.1 GB)
+// was otherwise all faulted in on its first fill, and on a machine whose fresh pages are dear (a VM
+// returning free memory to its host: docs/BENCHMARKS.md "Fresh memory") that cost about what zstd
+// takes to compress the whole slab. Reading is plain memory access (untouched pages read as zero),
+// but a read faults an untouched page in too (and on a kernel without a shared zero page,
+// pvm_no_zero_page, allocates and clears it): readers that can skip zeros ask known_zero() first
+// (the format's brick gather and 2x2x2 reduction do). Ownership: RAII (munmap). Thread-safety:
+// write() and write_narrowed() may run at once on ranges that share no page (page_size()
+// granularity, offsets from data()); reads of data() must not overlap a write.
 #pragma once
 
 #include <cstddef>

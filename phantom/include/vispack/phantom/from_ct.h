@@ -91,12 +91,13 @@ struct FromCtOptions {
   bool jump = true;    // one block jump at slice N/2 (needs N >= 4)
   int threads = 0;     // 0 = all cores; output independent of it
   bool quiet = false;  // no progress on stderr
-  // The colour at a z spacing ct_every times finer than the CT's (issue 31: the VH female's 3:1,
-  // the Visible Korean's 5:1): the CT volume is interpolated linearly along z (ct_every − 1 slices
-  // between each two) to synthesise the colour slices and the truth, and ct/ keeps only the CT's
-  // own slices, every ct_every-th colour slice (written as ct_<k/ct_every>; config
-  // ct.slice_spacing_mm = the CT's slice spacing). `slices` and `first` count colour slices;
-  // `first` must be a multiple of ct_every (the default, centred, is rounded down to one). 1..10.
+  // The colour at a z spacing ct_every times finer than the CT's (docs/ARCHITECTURE.md, 'Each input
+  // at its own z': the VH female's 3:1, the Visible Korean's 5:1): the CT volume is interpolated
+  // linearly along z (ct_every − 1 slices between each two) to synthesise the colour slices and the
+  // truth, and ct/ keeps only the CT's own slices, every ct_every-th colour slice (written as
+  // ct_<k/ct_every>; config ct.slice_spacing_mm = the CT's slice spacing). `slices` and `first`
+  // count colour slices; `first` must be a multiple of ct_every (the default, centred, is rounded
+  // down to one). 1..10.
   int ct_every = 1;
 };
 

@@ -50,12 +50,12 @@ struct PhantomPreset {
 // the stack, the body tapers to nothing at both ends (size ∝ sin(π t)^0.3), organs wander,
 // grow and vanish, and the texture is drawn afresh for every slice); male 2048×1216×200 (CT
 // 512², 1.4 mm) and male-small 384×228×64 (CT 1.5× coarser): a whole body from head to toes
-// (issue #30), several parts in most slices: the head tapering from nothing, arms beside the
-// torso (gaps 2–40 px at 1216 px height, the right arm resting on the table in part of the
-// stack), the pelvis parting into two legs of the same size, two feet, five toes per foot
-// tapering to nothing; a table in the CT touching the torso and the arm in some slices; no
-// fiducials; anatomy as varying as `anatomy`'s.
-// Throws UsageError naming the preset when it is unknown.
+// (docs/ARCHITECTURE.md, 'The body mask: every part is body'), several parts in most slices: the
+// head tapering from nothing, arms beside the torso (gaps 2–40 px at 1216 px height, the right arm
+// resting on the table in part of the stack), the pelvis parting into two legs of the same size,
+// two feet, five toes per foot tapering to nothing; a table in the CT touching the torso and the
+// arm in some slices; no fiducials; anatomy as varying as `anatomy`'s. Throws UsageError naming the
+// preset when it is unknown.
 PhantomPreset phantom_preset(const std::string& name);
 
 struct PhantomOptions {
@@ -83,8 +83,9 @@ struct PhantomOptions {
   double jump_px_min = 0, jump_px_max = 0;
   double ct_scale = 0;  // CT pixel / colour pixel; 0 = the preset's (0.25..16)
   // A CT slice only at every ct_every-th colour slice (k = 0, e, 2e, ...; written as ct_<k/e>),
-  // config ct.slice_spacing_mm = e · slice spacing (issue 31: the VH female's 3:1, the Visible
-  // Korean's 5:1). Colour slices beyond the last CT slice lie outside the CT's z range.
+  // config ct.slice_spacing_mm = e · slice spacing (docs/ARCHITECTURE.md, 'Each input at its own
+  // z': the VH female's 3:1, the Visible Korean's 5:1). Colour slices beyond the last CT slice lie
+  // outside the CT's z range.
   int ct_every = 1;  // 1..1000
   // The same for the segmentation (written as seg_<k/e>, config seg.slice_spacing_mm).
   int seg_every = 1;   // 1..1000

@@ -63,7 +63,7 @@ struct DriftScore {
   double body_rms_px = std::numeric_limits<double>::quiet_NaN();
   double body_max_px = std::numeric_limits<double>::quiet_NaN();
   int body_slices = 0;
-  // Drift where it shows (issue 31; score_work only): per slice the largest displacement between
+  // Drift where it shows (score_work only): per slice the largest displacement between
   // estimate and truth over the truth body's pixels (its convex hull's vertices), NaN where the
   // truth slice has no body or is not scored. The output clears everything outside the body, so
   // this is a slice's visible error; the frame's corners (error_px) also count a rotation that a

@@ -1,6 +1,7 @@
-// Bricks paged by view (issue 14): which bricks of which pyramid level a frame draws, in what
-// order, and which can be skipped because they cannot contribute. No GL here; the GL brick
-// cache (viewer/brick_cache.h) uploads what a plan asks for and the slice renderer draws it.
+// Bricks paged by view (docs/BENCHMARKS.md, 'Viewer: bricks paged by view'): which bricks of which
+// pyramid level a frame draws, in what order, and which can be skipped because they cannot
+// contribute. No GL here; the GL brick cache (viewer/brick_cache.h) uploads what a plan asks for
+// and the slice renderer draws it.
 //
 // The bricks of all levels form an octree: brick b of level L covers the level-0 voxels
 // [b·e·2^L, (b + 1)·e·2^L) per axis (e = brick edge), i.e. bricks 2b and 2b + 1 of level L − 1.

@@ -33,13 +33,13 @@ Image8 to_rgba8(const ImageF& image);
 // Throws std::invalid_argument if the sizes differ.
 double psnr_rgb(const Image8& a, const Image8& b);
 
-// Image comparison over the foreground, the measure of the viewer benchmark (issue 14) and of the
-// image tests. A pixel is foreground when its RGB differs from `background` in any channel in
-// either image (exactly: no threshold, so a faint haze counts); the other pixels are equal in both
-// images and are left out, since over the whole frame an identical background inflates the PSNR
-// by 10 log10(frame pixels / foreground pixels). psnr_db = 10 log10(255^2 / MSE), the MSE taken
-// over the R, G and B of the foreground pixels (alpha ignored); +inf when no foreground pixel
-// differs (including when there is no foreground at all).
+// Image comparison over the foreground, the measure of the viewer benchmark (docs/BENCHMARKS.md,
+// 'Viewer: bricks paged by view') and of the image tests. A pixel is foreground when its RGB
+// differs from `background` in any channel in either image (exactly: no threshold, so a faint haze
+// counts); the other pixels are equal in both images and are left out, since over the whole frame
+// an identical background inflates the PSNR by 10 log10(frame pixels / foreground pixels). psnr_db
+// = 10 log10(255^2 / MSE), the MSE taken over the R, G and B of the foreground pixels (alpha
+// ignored); +inf when no foreground pixel differs (including when there is no foreground at all).
 struct ForegroundDiff {
   std::int64_t pixels = 0;  // foreground pixels compared
   double psnr_db = 0;       // over their RGB

@@ -1,5 +1,5 @@
 // Render modes, their parameters and the transfer functions. The GL shaders
-// (viewer/src/gl/shaders.cpp) implement exactly these formulas; the CPU reference ray caster
+// (viewer/src/gl/shaders.h) implement exactly these formulas; the CPU reference ray caster
 // calls these functions, so a change here must be mirrored there.
 //
 // Compositing model (seeds 001, 003): emission–absorption with associated (premultiplied)

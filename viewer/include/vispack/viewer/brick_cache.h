@@ -1,5 +1,6 @@
-// The GPU brick cache (issue 14): one 3-D texture per brick and channel, each with a border of
-// kBorder voxels from its neighbours (render/brick_reader.h), within a byte budget
+// The GPU brick cache (docs/BENCHMARKS.md, 'Viewer: bricks paged by view'): one 3-D texture per
+// brick and channel, each with a border of kBorder voxels from its neighbours
+// (render/brick_reader.h), within a byte budget
 // (--max-gpu-mb). Bricks are decoded on worker threads, in the order requested (the plan's
 // `missing` list: coarsest first, then nearest), and uploaded on the GL thread by pump().
 // When a new brick does not fit, the least recently used bricks that the current frame does not

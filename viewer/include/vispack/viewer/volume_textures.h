@@ -27,7 +27,7 @@ struct UploadStats {
   double seconds = 0;      // wall time from begin() to the last brick
   // Bricks whose stored data failed its checksum or did not decode (FormatError from the
   // source): uploaded as zeros (transparent, HU 0, label 0), i.e. shown as missing. One message
-  // per bad brick, naming the file and brick (issue 7).
+  // per bad brick, naming the file and brick (docs/RELIABILITY.md).
   std::int64_t bad_bricks = 0;
   std::vector<std::string> bad_brick_errors;
 };

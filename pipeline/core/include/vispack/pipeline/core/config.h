@@ -15,7 +15,7 @@
 
 #include <nlohmann/json.hpp>
 
-#include "vispack/pipeline/core/transforms.h"
+#include "vispack/pipeline/core/transform_types.h"
 
 namespace vispack::pipeline {
 
@@ -40,7 +40,7 @@ struct CtSource : SliceSource {
   std::array<double, 2> pixel_spacing_mm{1.0, 1.0};
   double slope = 1.0;  // hu = stored * slope + intercept
   double intercept = -1024.0;
-  // Along z (slice_z.h, issue 31): CT slice j (stack index, sorted by number) lies at
+  // Along z (slice_z.h): CT slice j (stack index, sorted by number) lies at
   // z = z_offset_mm + j · slice_spacing_mm, colour slice k at k · spacing_mm[2] (mm).
   // ct.slice_spacing_mm: load_config fills in spacing_mm[2] when the key is absent; unset in a
   // Config built in code means the same.
@@ -54,7 +54,7 @@ struct SegSource : SliceSource {
   double tolerance = 24.0;      // max Euclidean RGB distance for nearest-colour matching
   bool strict = false;          // an out-of-tolerance colour is an error instead of label 0
   std::string id_map;           // mode "id": optional JSON {"<input id>": <output id>}, absolute
-  // Along z (slice_z.h, issue 31). seg.slice_spacing_mm unset (the default): segmentation slices
+  // Along z (slice_z.h). seg.slice_spacing_mm unset (the default): segmentation slices
   // are matched to colour slices by the number in the file name. Set: segmentation slice j (stack
   // index) lies at z = z_offset_mm + j · slice_spacing_mm and each colour slice takes the one
   // nearest in z (none within half a spacing: label 0, listed).
@@ -118,9 +118,10 @@ struct PackOptions {
 };
 
 // What the stages write into the work folder besides what a person inspects (masks, overlays,
-// label slices, transforms, QC), config section "work" (issue 12). The later stages never read
-// the full-size registered colour or resampled CT back: they resample them from the input slices
-// and transforms.json (work_layout.h), so these switches change only what is on disk.
+// label slices, transforms, QC), config section "work" (docs/ARCHITECTURE.md, 'Work folder
+// layout'). The later stages never read the full-size registered colour or resampled CT back: they
+// resample them from the input slices and transforms.json (work_layout.h), so these switches change
+// only what is on disk.
 struct WorkOptions {
   bool write_registered = false;  // <work>/register/registered/rgb_NNNN.png (full size)
   bool write_ct = false;          // <work>/mask/ct_NNNN.png (16-bit HU + 32768, full size)

@@ -1,6 +1,6 @@
 // Cheap checks that catch a plausible config mistake before it becomes a silently wrong volume
-// (issue 31): a planar raw colour file read as interleaved (or the reverse), and a stack whose
-// colour slices are all black.
+// (docs/ARCHITECTURE.md, 'Each input at its own z'): a planar raw colour file read as interleaved
+// (or the reverse), and a stack whose colour slices are all black.
 //
 // Raw layout. In an interleaved 8-bit RGB file, of three neighbouring-sample differences
 // |s[i+1] − s[i]| two lie inside a pixel (R to G, G to B) and one crosses to the next pixel (B to

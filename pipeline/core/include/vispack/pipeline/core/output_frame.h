@@ -3,7 +3,7 @@
 #pragma once
 
 #include "vispack/pipeline/core/config.h"
-#include "vispack/pipeline/core/transforms.h"
+#include "vispack/pipeline/core/transform_types.h"
 
 namespace vispack::pipeline {
 

@@ -9,7 +9,7 @@
 
 #include <nlohmann/json.hpp>
 
-#include "vispack/pipeline/core/transforms.h"
+#include "vispack/pipeline/core/transform_types.h"
 
 namespace vispack::pipeline {
 

@@ -1,6 +1,6 @@
-// Where each input slice lies along z (issue 31): colour, CT and segmentation each have their own
-// slice spacing and z offset, and every pairing of a CT or segmentation slice with a colour slice
-// goes through this file, never through equal stack indices.
+// Where each input slice lies along z (docs/ARCHITECTURE.md, 'Each input at its own z'): colour, CT
+// and segmentation each have their own slice spacing and z offset, and every pairing of a CT or
+// segmentation slice with a colour slice goes through this file, never through equal stack indices.
 //
 // Frames and units. z is in mm along the stack, 0 at colour slice 0:
 //   z of colour slice k (the stack index, = output z)   = k · spacing_mm[2]

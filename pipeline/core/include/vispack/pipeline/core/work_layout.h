@@ -7,12 +7,10 @@
 #include <string>
 #include <vector>
 
-#include <opencv2/core.hpp>
-
 #include "vispack/pipeline/core/config.h"
 #include "vispack/pipeline/core/fingerprint.h"
 #include "vispack/pipeline/core/slice_list.h"
-#include "vispack/pipeline/core/transforms.h"
+#include "vispack/pipeline/core/transform_types.h"
 
 namespace vispack::pipeline {
 
@@ -59,12 +57,12 @@ std::vector<std::string> z_extent_warnings(const Config& config, int colour_coun
 StackTransforms read_stack_transforms(const Config& config, int slice_count);
 
 // What the later stages need to rebuild a slice's registered colour and resampled CT from the
-// inputs (issue 12: those full-size images are not written by default, config "work").
+// inputs (docs/ARCHITECTURE.md, 'Work folder layout': those full-size images are not written by
+// default, config "work").
 struct StackInputs {
   std::vector<SliceFile> rgb;  // stack_slices(config): index k = output slice k
   std::vector<SliceFile> ct;   // list_slices(*config.ct), empty without CT
   StackTransforms transforms;  // <work>/register/transforms.json, one per colour slice
-  cv::Size size() const { return {transforms.width, transforms.height}; }
 };
 // Lists the slice folders and reads transforms.json (read_stack_transforms: same errors).
 StackInputs read_stack_inputs(const Config& config);

@@ -7,7 +7,7 @@
 namespace vispack::pipeline {
 
 // CT (CV_32F HU) resampled onto an output grid of `size`; `out_to_ct` maps output pixels to CT
-// pixels (transforms.h output_to_ct). Linear; outside the CT is −1024 HU (air).
+// pixels (imaging/transforms.h output_to_ct). Linear; outside the CT is −1024 HU (air).
 cv::Mat resample_ct(const cv::Mat& ct_hu, const cv::Matx23d& out_to_ct, cv::Size size);
 // HU → CV_16U with value HU + 32768, clamped (the work/mask/ct_NNNN.png encoding).
 cv::Mat encode_hu16(const cv::Mat& hu);

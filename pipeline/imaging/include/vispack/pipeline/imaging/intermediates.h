@@ -35,7 +35,7 @@ cv::Mat ct_hu_at_colour_slice(const Config& config, const std::vector<SliceFile>
                               int colour_k);
 
 // The CT at output slice k's z in HU (ct_hu_at_colour_slice) and the map from output pixels to
-// its pixels (transforms.h output_to_ct with transforms.json's ct_to_rgb, else the config's
+// its pixels (imaging/transforms.h output_to_ct with transforms.json's ct_to_rgb, else the config's
 // definition). Without CT, or when slice k lies outside the CT's z range, `hu` is empty.
 // With `for_mask`, a slice between two CT slices is also checked for `body_ends`.
 struct CtSlice {

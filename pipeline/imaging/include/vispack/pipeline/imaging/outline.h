@@ -17,8 +17,9 @@
 // The part rule (body_parts): EVERY body part is body. A real axial slice holds several parts
 // (arms beside the torso, two legs, two feet, toes, separate lobes at the top of a head), of
 // nearly equal size below the pelvis: ranking parts by size (keeping the largest component, the
-// rule before issue #30) drops arms and a leg. A connected part (8-connected, after the opening,
-// holes filled) is removed only by what tells it apart from tissue:
+// rule before every part was body, docs/ARCHITECTURE.md, 'The body mask: every part is body') drops
+// arms and a leg. A connected part (8-connected, after the opening, holes filled) is removed only
+// by what tells it apart from tissue:
 //   - debris: smaller than the minimum part area (config mask.min_part_mm2, converted to pixels
 //     of the image by the caller). A part narrower than the opening is gone before the rule.
 //   - holder, table, tube walls, cables: thin and long. Elongation = area / (π r²), r the part's

@@ -43,7 +43,7 @@
 
 #include "vispack/pipeline/core/config.h"
 #include "vispack/pipeline/core/palette.h"
-#include "vispack/pipeline/core/transforms.h"
+#include "vispack/pipeline/imaging/transforms.h"
 
 namespace vispack::pipeline {
 

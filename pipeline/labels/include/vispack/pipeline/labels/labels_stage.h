@@ -18,8 +18,8 @@
 #include "vispack/pipeline/core/config.h"
 #include "vispack/pipeline/core/slice_list.h"
 #include "vispack/pipeline/core/stage_run.h"
-#include "vispack/pipeline/core/transforms.h"
 #include "vispack/pipeline/imaging/slice_io.h"
+#include "vispack/pipeline/imaging/transforms.h"
 #include "vispack/pipeline/labels/labels.h"
 
 namespace vispack::pipeline {

@@ -31,20 +31,21 @@
 // distance to the gel > gel_distance, the opening, the part rule with its colour test (gel and
 // green fiducial tubes are not tissue-coloured), holes filled.
 //
-// Where the edge was lost before (issue #11): a CT edge is a partial-volume ramp (pixel
-// size, PSF, and along z the slab over which a tapering outline changes), and the old mask took
-// it at −400 HU — above the half-covered level, so inside the body, by ~0.25 px on the widest
-// sections and by several pixels near the top of a head, where the slab smears the outline and
-// a small cross-section's peak HU stays below −400 (no mask at all). The binary CT mask was then
-// resampled, which quantises the edge to CT pixels (±1 output px at 2× coarser CT). The gel
-// refinement only removes pixels, so it could not restore either loss. Now the CT edge lies at
-// the half-covered level with sub-pixel placement (steps 1, 3): it errs outward, if at all, where
-// the CT cannot place it (a smeared slab), and step 4 trims that on the colour edge. Measured on
-// analytic head-cap stacks with a CT 2× coarser (tests/pipeline/test_mask_edge.cpp): mean edge
-// offset −0.26 … −5 px → +0.02 … +0.12 px, IoU ≥ 0.977 down to 500-px cross-sections. The
-// opening (step 5) costs nothing measurable (≤ 0.001 IoU for radius 0…2). Without refinement
-// (mask.refine_gel false, black slices) the CT alone sets the edge: within 0.05 px where the
-// outline is steady along z, up to ~1–2 px outside on the smeared small sections of a head's top.
+// Where the edge was lost before (docs/BENCHMARKS.md, 'Mask edge against independent truth'): a CT
+// edge is a partial-volume ramp (pixel size, PSF, and along z the slab over which a tapering
+// outline changes), and the old mask took it at −400 HU — above the half-covered level, so inside
+// the body, by ~0.25 px on the widest sections and by several pixels near the top of a head, where
+// the slab smears the outline and a small cross-section's peak HU stays below −400 (no mask at
+// all). The binary CT mask was then resampled, which quantises the edge to CT pixels (±1 output px
+// at 2× coarser CT). The gel refinement only removes pixels, so it could not restore either loss.
+// Now the CT edge lies at the half-covered level with sub-pixel placement (steps 1, 3): it errs
+// outward, if at all, where the CT cannot place it (a smeared slab), and step 4 trims that on the
+// colour edge. Measured on analytic head-cap stacks with a CT 2× coarser
+// (tests/pipeline/test_mask_edge.cpp): mean edge offset −0.26 … −5 px → +0.02 … +0.12 px, IoU ≥
+// 0.977 down to 500-px cross-sections. The opening (step 5) costs nothing measurable (≤ 0.001 IoU
+// for radius 0…2). Without refinement (mask.refine_gel false, black slices) the CT alone sets the
+// edge: within 0.05 px where the outline is steady along z, up to ~1–2 px outside on the smeared
+// small sections of a head's top.
 //
 // Masks are CV_8UC1 with values 0 / 255. All functions here are pure and thread-safe (the
 // stage, which sets OpenCV's process-wide thread count, is in mask_stage.h).
@@ -55,8 +56,8 @@
 #include <opencv2/core.hpp>
 
 #include "vispack/pipeline/core/config.h"
-#include "vispack/pipeline/core/transforms.h"
 #include "vispack/pipeline/imaging/outline.h"
+#include "vispack/pipeline/imaging/transforms.h"
 
 namespace vispack::pipeline {
 

@@ -1,6 +1,6 @@
 // The CT anchor: each colour slice aligned to its own CT slice, an absolute (drift-free)
-// measurement of its transform T_k (core/transforms.h: output point q appears in observed slice k
-// at p = c + R(θ_k)(q − c) + d_k).
+// measurement of its transform T_k (imaging/transforms.h: output point q appears in observed slice
+// k at p = c + R(θ_k)(q − c) + d_k).
 //
 // The output grid is DEFINED by the CT (docs/ARCHITECTURE.md "The output frame"), never
 // estimated: defined_ct_to_rgb(config). The anchor therefore estimates only T_k.
@@ -31,7 +31,8 @@
 //      full working resolution, from step 3's
 //      result; kept when it converges within a few pixels and 1° of it. The outline is what both
 //      modalities show alike; the intensity map of step 3 is not exact inside the body, which
-//      biased a small body's rotation by tenths of a degree (docs/BENCHMARKS.md, issue #11).
+//      biased a small body's rotation by tenths of a degree (docs/BENCHMARKS.md, 'Registration
+//      anchored on the CT').
 //   5. lever_px: how well the template pins rotation (below); correlation = the final ECC
 //      coefficient; confidence = clamp((correlation − 0.4) / 0.4)
 //      × clamp(body_fraction / 0.03): slices whose body is a small patch (the ends of the
@@ -55,7 +56,7 @@
 #include <opencv2/core.hpp>
 
 #include "vispack/pipeline/core/config.h"
-#include "vispack/pipeline/core/transforms.h"
+#include "vispack/pipeline/imaging/transforms.h"
 #include "vispack/pipeline/register/frame.h"
 
 namespace vispack::pipeline {

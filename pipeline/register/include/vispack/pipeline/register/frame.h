@@ -1,7 +1,7 @@
 // Frame preparation for registration: each colour slice becomes a RegisterFrame once (grey
 // levels for the pair estimates, the colour level of the CT anchor, fiducials, a pixel hash
 // and a black flag); a frame is shared by every pair and the anchor it takes part in.
-// Conventions (pixel coordinates, transforms) as in core/transforms.h and docs/ARCHITECTURE.md.
+// Conventions (pixel coordinates, transforms) as in imaging/transforms.h and docs/ARCHITECTURE.md.
 // All functions are pure and thread-safe.
 #pragma once
 

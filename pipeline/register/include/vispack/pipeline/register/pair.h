@@ -25,7 +25,7 @@
 #include <opencv2/core.hpp>
 
 #include "vispack/pipeline/core/config.h"
-#include "vispack/pipeline/core/transforms.h"
+#include "vispack/pipeline/imaging/transforms.h"
 #include "vispack/pipeline/register/ct_anchor.h"
 #include "vispack/pipeline/register/frame.h"
 
@@ -33,7 +33,7 @@ namespace vispack::pipeline {
 
 // The rigid transform between two slices: observed point p_j of slice j corresponds to
 // p_k = c + R(rotation)(p_j − c) + d in slice k, so T_k = relative ∘ T_j (T as in
-// core/transforms.h).
+// imaging/transforms.h).
 struct PairEstimate {
   Rigid relative;
   double quality = 0.0;   // [0, 1]: ECC correlation coefficient ("phase": peak response)

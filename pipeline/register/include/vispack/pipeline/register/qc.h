@@ -15,7 +15,7 @@
 
 #include <opencv2/core.hpp>
 
-#include "vispack/pipeline/core/transforms.h"
+#include "vispack/pipeline/imaging/transforms.h"
 #include "vispack/pipeline/register/ct_anchor.h"
 #include "vispack/pipeline/register/solve.h"
 

@@ -1,5 +1,6 @@
 // Registration of the colour stack (vispack-register's algorithms; docs/GOALS.md §1, §2, §6;
-// conventions in transforms.h and docs/ARCHITECTURE.md "Slice transforms" and "Registration").
+// conventions in imaging/transforms.h and docs/ARCHITECTURE.md "Slice transforms" and
+// "Registration").
 //
 // The modules, one job each:
 //   register/frame.h      a slice prepared once: grey levels, anchor colour level, fiducials

@@ -1,7 +1,7 @@
 // The coarse rotation search shared by the pair estimate (register/pair.h) and the CT anchor's
 // capture (register/ct_anchor.h): images rotated about their centre, a sweep of candidate angles
 // scored by the caller, refined by half steps and a parabola. Angles in degrees,
-// counter-clockwise as displayed (the convention of core/transforms.h). Pure and thread-safe.
+// counter-clockwise as displayed (the convention of imaging/transforms.h). Pure and thread-safe.
 #pragma once
 
 #include <algorithm>

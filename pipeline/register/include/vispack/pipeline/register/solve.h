@@ -57,7 +57,7 @@
 #include <opencv2/core.hpp>
 
 #include "vispack/pipeline/core/overrides.h"
-#include "vispack/pipeline/core/transforms.h"
+#include "vispack/pipeline/imaging/transforms.h"
 #include "vispack/pipeline/register/pair.h"
 
 namespace vispack::pipeline {

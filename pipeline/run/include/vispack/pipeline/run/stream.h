@@ -1,6 +1,6 @@
-// The streaming run (vispack-run's default, issue 12): mask, labels and pack in ONE pass over the
-// stack, after the register stage (which needs the whole stack for its global solve) and before
-// the vdb stage (a separate step).
+// The streaming run (vispack-run's default; docs/ARCHITECTURE.md, 'The streaming run'): mask,
+// labels and pack in ONE pass over the stack, after the register stage (which needs the whole stack
+// for its global solve) and before the vdb stage (a separate step).
 //
 // Each stack slice k (of the whole stack, or of a shard: below) is read once (input colour, CT
 // slice, segmentation slice); its registered colour and resampled CT are computed once; its mask

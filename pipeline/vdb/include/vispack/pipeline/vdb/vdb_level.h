@@ -1,4 +1,5 @@
-// Which pyramid level of a packed file the OpenVDB export (vdb.h) can afford (issue #12).
+// Which pyramid level of a packed file the OpenVDB export (vdb.h) can afford (docs/BENCHMARKS.md,
+// 'OpenVDB export memory under a budget').
 //
 // OpenVDB keeps a grid's active voxels in 8^3 leaf nodes that store all 512 values once any one
 // is set, so the memory of the export is (touched leaves) x (bytes per leaf of each grid) plus a

@@ -1,6 +1,5 @@
-// The transforms of a slice stack and their one implementation: the two transform types
-// (Rigid for a colour slice's drift, Similarity for ct_to_rgb), their matrices, and
-// transforms.json (the register stage's output and the phantom's truth), in the convention of
+// The matrices of the stack's transforms (core/transform_types.h: Rigid for a colour slice's
+// drift, Similarity for ct_to_rgb) and the resampling, in the convention of
 // docs/ARCHITECTURE.md ("Slice transforms"):
 //
 //   slice k:   a point q of the output (registered) grid appears in the observed slice at
@@ -10,35 +9,14 @@
 //   ct_to_rgb: a CT pixel u lands on the output grid at q = c + s·R(θ)(u − c_ct) + d.
 //
 // Registration resamples registered(q) = observed(p), i.e. cv::warpAffine with the q → p matrix
-// and cv::WARP_INVERSE_MAP. All functions here are pure (no state) and thread-safe, except
-// read_transforms / write_transforms, which touch the file system (thread-safe for distinct
-// paths).
+// and cv::WARP_INVERSE_MAP. All functions here are pure (no state) and thread-safe.
 #pragma once
 
-#include <array>
-#include <optional>
-#include <string>
-#include <vector>
-
-#include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 
+#include "vispack/pipeline/core/transform_types.h"
+
 namespace vispack::pipeline {
-
-// One slice's drift: rotation about the slice centre, then shift (pixels of that slice).
-struct Rigid {
-  double rotation_deg = 0.0;
-  double dx_px = 0.0;
-  double dy_px = 0.0;
-};
-
-// Scale, rotation and shift (ct_to_rgb): scale = CT pixel size / output pixel size.
-struct Similarity {
-  double scale = 1.0;
-  double rotation_deg = 0.0;
-  double dx_px = 0.0;
-  double dy_px = 0.0;
-};
 
 // Pixel centre c = ((W−1)/2, (H−1)/2) of a W×H image.
 inline cv::Point2d image_centre(int width, int height) {
@@ -86,39 +64,12 @@ cv::Mat resample_rigid(const cv::Mat& observed, const Rigid& t, int interpolatio
 // similarity_matrix(t, ct_centre, centre). Use with warpAffine(..., WARP_INVERSE_MAP).
 cv::Matx23d output_to_ct(const Similarity& t, cv::Point2d centre, cv::Point2d ct_centre);
 
-// ---- transforms.json ----
-
-// One slice of the stack: its drift `rigid` (output point q -> observed point p, above) and
-// what registration decided about it.
-struct SliceTransform {
-  int index = 0;     // position in the stack (0-based)
-  int number = 0;    // the number parsed from the file name
-  std::string file;  // the colour slice's file name
-  Rigid rigid;
-  bool jump = false;                // a sudden jump between the previous slice and this one
-  bool black = false;               // no signal (a lost slice)
-  std::optional<int> duplicate_of;  // stack index of the slice this one duplicates
-  double quality = 1.0;             // [0, 1]
-  nlohmann::json extra = nlohmann::json::object();  // other per-slice keys, kept on write
-};
-
-struct StackTransforms {
-  int width = 0, height = 0;                        // output (and observed RGB) grid, pixels
-  std::array<double, 2> center_px{0, 0};            // ((W-1)/2, (H-1)/2)
-  std::optional<int> reference_slice;               // the slice defining the output frame, if any
-  std::vector<SliceTransform> slices;               // one per stack index, in order
-  std::optional<Similarity> ct_to_rgb;              // CT pixel u -> output q (above)
-  nlohmann::json extra = nlohmann::json::object();  // unknown keys, kept on write
-
-  cv::Point2d centre() const { return {center_px[0], center_px[1]}; }
-  cv::Size size() const { return {width, height}; }
-};
-
-// Reads transforms.json. Throws FormatError naming the file and key (IoError if unreadable).
-StackTransforms read_transforms(const std::string& path);
-// The text write_transforms writes (JSON, 2-space indent, final newline).
-std::string transforms_text(const StackTransforms& transforms);
-// Writes transforms.json atomically (IoError).
-void write_transforms(const std::string& path, const StackTransforms& transforms);
+// The output grid of a stack's transforms: its centre c and its size (W, H).
+inline cv::Point2d grid_centre(const StackTransforms& t) {
+  return {t.center_px[0], t.center_px[1]};
+}
+inline cv::Size grid_size(const StackTransforms& t) {
+  return {t.width, t.height};
+}
 
 }  // namespace vispack::pipeline
