@@ -5,6 +5,7 @@
 #include "vispack/common/error.h"
 #include "vispack/pipeline/core/stage_run.h"
 #include "vispack/pipeline/core/work_layout.h"
+#include "vispack/pipeline/core/work_lock.h"
 #include "vispack/pipeline/run/run.h"
 
 int main(int argc, char** argv) {
@@ -58,6 +59,7 @@ int main(int argc, char** argv) {
       std::cout << "\npack_slab_slices " << config.pack.brick_edge << "\n";
       return 0;
     }
+    const auto lock = pipeline::WorkFolderLock::acquire(config.work_dir, options.slices);
     pipeline::keep_slice_buffers();
     for (const auto& r : pipeline::run_pipeline(config, options)) {
       std::cout << r.stage << ": " << (r.processed ? "ran" : "up to date") << " (" << r.processed
