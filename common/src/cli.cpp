@@ -4,6 +4,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <iostream>
+#include <sstream>
 
 #include "vispack/common/error.h"
 #include "vispack/common/exit_codes.h"
@@ -166,7 +167,15 @@ int run_main(const std::string& program, int argc, char** argv,
     std::cerr << program << ": error: out of memory\n";
     return int(ExitCode::kFailure);
   } catch (const std::exception& error) {
-    std::cerr << program << ": error: " << error.what() << "\n";
+    // A message of several lines (a config with several errors) prints one error line each.
+    std::istringstream lines(error.what());
+    std::string line;
+    bool printed = false;
+    while (std::getline(lines, line)) {
+      std::cerr << program << ": error: " << line << "\n";
+      printed = true;
+    }
+    if (!printed) std::cerr << program << ": error: (no message)\n";
     return int(exit_code_for(error));
   }
 }

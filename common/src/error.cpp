@@ -2,6 +2,7 @@
 
 #include <new>
 
+#include "vispack/common/busy_error.h"
 #include "vispack/common/exit_codes.h"
 
 namespace vispack {
@@ -12,6 +13,7 @@ ExitCode exit_code_for(const std::exception& error) noexcept {
   if (dynamic_cast<const FormatError*>(&error)) return ExitCode::kInvalidFile;
   if (dynamic_cast<const ConfigError*>(&error)) return ExitCode::kConfig;
   if (dynamic_cast<const InputError*>(&error)) return ExitCode::kInput;
+  if (dynamic_cast<const BusyError*>(&error)) return ExitCode::kBusy;
   return ExitCode::kFailure;
 }
 

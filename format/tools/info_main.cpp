@@ -20,6 +20,72 @@ std::string values(const std::vector<std::int64_t>& v) {
   return nlohmann::json(v).dump();
 }
 
+std::string readable(const nlohmann::json& v, int depth);
+
+// Integers as ascending ranges: "0..127", "1001..1499, 1501..2871"; at most `max_runs` runs
+// (then how many in all). The list is shown in its own order; runs break where it steps by not 1.
+std::string ranges(const nlohmann::json& list, std::size_t max_runs = 6) {
+  std::string out;
+  std::size_t runs = 0, i = 0;
+  const std::size_t n = list.size();
+  while (i < n) {
+    std::size_t j = i;
+    while (j + 1 < n && list[j + 1].get<std::int64_t>() == list[j].get<std::int64_t>() + 1)
+      ++j;
+    if (runs < max_runs) {
+      out += runs ? ", " : "";
+      out += std::to_string(list[i].get<std::int64_t>());
+      if (j > i) out += ".." + std::to_string(list[j].get<std::int64_t>());
+    }
+    ++runs;
+    i = j + 1;
+  }
+  if (runs > max_runs) out += vispack::cat(", ... (", runs, " runs)");
+  return out;
+}
+
+bool all_integers(const nlohmann::json& list) {
+  for (const auto& v : list)
+    if (!v.is_number_integer() && !v.is_number_unsigned()) return false;
+  return true;
+}
+
+// A JSON value in a few words: objects as "key value, ...", lists of integers as their count and
+// ranges, long lists of anything else as their count; nested objects in parentheses. Lines are
+// cut at 200 characters ("..."; --json prints everything).
+std::string readable(const nlohmann::json& v, int depth) {
+  std::string out;
+  if (v.is_object()) {
+    if (v.empty()) return "none";
+    for (auto it = v.begin(); it != v.end(); ++it) {
+      out += out.empty() ? "" : ", ";
+      const std::string inner = readable(it.value(), depth + 1);
+      out += it.key() + " " +
+             (it.value().is_object() && !it.value().empty() ? "(" + inner + ")" : inner);
+    }
+  } else if (v.is_array()) {
+    if (v.empty()) return "none";
+    if (all_integers(v))
+      out = v.size() == 1 ? ranges(v) : vispack::cat(v.size(), ": ", ranges(v));
+    else if (v.size() <= 4)
+      out = v.dump();
+    else
+      out = vispack::cat(v.size(), " entries");
+  } else if (v.is_string()) {
+    out = v.get<std::string>().empty() ? "-" : v.get<std::string>();
+  } else if (v.is_number_float()) {
+    char text[32];
+    std::snprintf(text, sizeof text, "%.4g", v.get<double>());
+    out = text;
+  } else if (v.is_null()) {
+    out = "none";
+  } else {
+    out = v.dump();
+  }
+  if (depth == 0 && out.size() > 200) out = out.substr(0, 197) + "...";
+  return out;
+}
+
 void print_text(const Summary& s) {
   const LevelInfo& l0 = s.levels.front();
   std::printf("file:        %s\n", s.file.c_str());
@@ -53,8 +119,17 @@ void print_text(const Summary& s) {
     std::printf("\n");
   }
   std::printf("label table: %zu entries\n", s.label_table_size);
+  // The writer's free-form metadata ("extra"; a packed volume's slice numbers, registration,
+  // provenance): one line per key, integer lists as ranges. --json prints all of it as it is.
   const auto& extra = s.metadata.value("extra", nlohmann::json::object());
-  if (!extra.empty()) std::printf("extra:       %s\n", extra.dump().c_str());
+  if (extra.is_object()) {
+    for (auto it = extra.begin(); it != extra.end(); ++it) {
+      const std::string key = it.key() + ":";
+      std::printf("%-12s %s\n", key.c_str(), readable(it.value(), 0).c_str());
+    }
+  } else if (!extra.is_null()) {
+    std::printf("extra:       %s\n", readable(extra, 0).c_str());
+  }
   if (s.verified) {
     if (s.findings.empty())
       std::printf("verify:      ok\n");
@@ -77,7 +152,9 @@ int main(int argc, char** argv) {
   return run_main(kProgram, argc, argv, [](Args& args) {
     args.describe(
         "FILE [--json] [--verify [--deep]]",
-        "Prints a packed volume's metadata, sizes and per-channel statistics. With --verify, "
+        "Prints a short summary of a packed volume: geometry, levels, bricks, per-channel sizes "
+        "and value ranges, the label table, and the writer's metadata one line per key (slice "
+        "numbers as ranges); --json prints everything, the whole metadata included. With --verify, "
         "checks the file and prints one numbered finding per defect to stderr, e.g. "
         "\"vispack-info: finding 8: level 0 channel ct brick (1,0,2): payload checksum "
         "mismatch (...)\" (numbers: format/FINDINGS.md); the exit code is 4 when there is any.");

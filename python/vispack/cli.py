@@ -56,8 +56,11 @@ def _dump(p, f, args):
         data = level[key]
     except (IndexError, TypeError) as err:
         p.error(f"--region {args.region!r}: {err}")
+    data = np.ascontiguousarray(data)
     with open(args.raw, "wb") as out:
-        out.write(np.ascontiguousarray(data).tobytes())
+        out.write(data.tobytes())
+    print(f"wrote {args.raw} ({args.channel}, level {args.level}, shape [z, y, x] "
+          f"{list(data.shape[:3])}, {data.dtype.str})")
 
 
 def main(argv=None):

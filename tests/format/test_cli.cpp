@@ -4,7 +4,9 @@
 #include <sys/wait.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstring>
+#include <tuple>
 #ifdef VISPACK_TEST_HAVE_OIIO
 #include <OpenImageIO/imageio.h>
 #endif
@@ -99,6 +101,43 @@ TEST_F(Cli, InfoPrintsAndVerifies) {
   Result missing = run(kInfo + " " + temp_path("missing.vpk"));
   EXPECT_EQ(missing.code, 3);
   EXPECT_NE(missing.err.find("vispack-info: error: "), std::string::npos) << missing.err;
+}
+
+// The text output is a short summary: the writer's metadata one line per key, a list of slice
+// numbers as ranges (a Visible Human male's 1,871 numbers in a few words), never a raw JSON dump;
+// --json keeps every number.
+TEST(InfoText, MetadataIsSummarisedWithNumbersAsRanges) {
+  Volume v = make_volume({16, 12, 10}, 5);
+  WriterOptions o = options_for(v, 8);
+  std::vector<int> numbers;
+  for (int n = 1001; n <= 2872; ++n)
+    if (n != 1500) numbers.push_back(n);
+  o.extra_metadata = {
+      {"name", "male"},
+      {"slices",
+       {{"count", numbers.size()},
+        {"numbers", numbers},
+        {"missing_numbers", {1500}},
+        {"black", nlohmann::json::array()}}},
+      {"registration", {{"mean_quality", 0.987654}, {"jumps", {7, 8, 9, 40}}}},
+      {"provenance", {{"tool", "format tests"}, {"input_hashes", {{"palette", ""}}}}}};
+  const std::string path = temp_path("info-text.vpk");
+  write(path, v, o);
+  Result r = run(kInfo + " " + path);
+  ASSERT_EQ(r.code, 0) << r.err;
+  for (const char* line :
+       {"name:        male\n",
+        "slices:      black none, count 1871, missing_numbers 1500, numbers 1871: 1001..1499, "
+        "1501..2872\n",
+        "registration: jumps 4: 7..9, 40, mean_quality 0.9877\n",
+        "provenance:  input_hashes (palette -), tool format tests\n"})
+    EXPECT_NE(r.out.find(line), std::string::npos) << "no line '" << line << "' in\n" << r.out;
+  EXPECT_EQ(r.out.find("1002"), std::string::npos) << r.out;
+  EXPECT_EQ(r.out.find('{'), std::string::npos) << "raw JSON in the text output:\n" << r.out;
+  Result j = run(kInfo + " --json " + path);
+  ASSERT_EQ(j.code, 0) << j.err;
+  EXPECT_EQ(nlohmann::json::parse(j.out)["metadata"]["extra"]["slices"]["numbers"],
+            nlohmann::json(numbers));
 }
 
 TEST_F(Cli, VerifyNamesTheBadBrickAndExits4) {
@@ -203,6 +242,62 @@ TEST_F(Cli, ExtractSliceImagesAndUsageErrors) {
   EXPECT_EQ(run(kExtract + " " + *path_ + " --channel ct -o " + temp_path("n.xyz")).code, 2);
   EXPECT_EQ(run(kExtract + " " + *path_ + " --channel ct").code, 2);
   EXPECT_EQ(run(kExtract + " --help").code, 0);
+}
+
+// --window C:W: an 8-bit preview of a CT slice, each pixel the HU mapped through the window
+// (0 at C - W/2, 255 at C + W/2, rounded, clamped); --preview is --window 40:400. One line on
+// stdout names the file written.
+TEST_F(Cli, ExtractCtPreviewThroughAWindow) {
+  const std::string png = temp_path("ct-window.png");
+  Result r = run(kExtract + " " + *path_ + " --channel ct --z 7 --window -100:600 -o " + png);
+  if (r.code == 2 && r.err.find("no OpenImageIO") != std::string::npos)
+    GTEST_SKIP() << "built without OpenImageIO";
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(r.out,
+            "wrote " + png + " (ct, level 0, z 7: 45 x 30, 8-bit grey, window -100:600 HU)\n");
+  const std::string preview = temp_path("ct-preview.png");
+  Result p = run(kExtract + " " + *path_ + " --channel ct --z 7 --preview -o " + preview);
+  ASSERT_EQ(p.code, 0) << p.err;
+  EXPECT_NE(p.out.find("window 40:400 HU"), std::string::npos) << p.out;
+#ifdef VISPACK_TEST_HAVE_OIIO
+  Reader reader = Reader::open(*path_);
+  const std::vector<std::uint8_t> level = reader.read_level("ct", 0);
+  for (const auto& [file, low, width] :
+       {std::tuple{png, -400.0, 600.0}, std::tuple{preview, -160.0, 400.0}}) {
+    const Image img = read_image(file);
+    ASSERT_EQ(img.width, 45);
+    ASSERT_EQ(img.height, 30);
+    ASSERT_EQ(img.channels, 1);
+    ASSERT_EQ(img.bits, 8);
+    std::int64_t wrong = 0, black = 0, white = 0;
+    for (std::size_t i = 0; i < std::size_t(45 * 30); ++i) {
+      std::int16_t hu;
+      std::memcpy(&hu, level.data() + 2 * (std::size_t(45 * 30) * 7 + i), 2);
+      const double grey = std::clamp((double(hu) - low) / width * 255.0, 0.0, 255.0);
+      if (std::abs(double(img.u8[i]) - grey) > 0.5 + 1e-9) ++wrong;
+      black += img.u8[i] == 0;
+      white += img.u8[i] == 255;
+    }
+    EXPECT_EQ(wrong, 0) << file;
+    EXPECT_LT(black + white, 45 * 30) << file << ": every pixel clipped";
+  }
+#endif
+  // Usage errors: not the ct channel, a bad window, a window for a .nrrd, both options.
+  for (const std::string& bad :
+       {" --channel rgba --z 1 --window 40:400 -o " + temp_path("w.png"),
+        " --channel ct --z 1 --window 40:0 -o " + temp_path("w.png"),
+        " --channel ct --z 1 --window 40 -o " + temp_path("w.png"),
+        " --channel ct --window 40:400 -o " + temp_path("w.nrrd"),
+        " --channel ct --z 1 --window 40:400 --preview -o " + temp_path("w.png")}) {
+    Result u = run(kExtract + " " + *path_ + bad);
+    EXPECT_EQ(u.code, 2) << bad << ": " << u.err;
+    EXPECT_EQ(u.err.rfind("vispack-extract: error: ", 0), 0u) << u.err;
+  }
+  // The exact export is unchanged and says so.
+  const std::string exact = temp_path("ct-exact.png");
+  Result e = run(kExtract + " " + *path_ + " --channel ct --z 7 -o " + exact);
+  ASSERT_EQ(e.code, 0) << e.err;
+  EXPECT_EQ(e.out, "wrote " + exact + " (ct, level 0, z 7: 45 x 30, 16-bit grey = HU + 32768)\n");
 }
 
 TEST_F(Cli, PythonReaderAgreesVoxelForVoxel) {

@@ -6,6 +6,7 @@
 #include <fstream>
 #include <functional>
 #include <set>
+#include <sstream>
 
 #include "test_support.h"
 #include "vispack/common/atomic_file.h"
@@ -417,4 +418,118 @@ TEST(Config, SchemaAndLoaderAgreeKeyForKey) {
                               nullptr, true, true);
     EXPECT_EQ(schema_check(schema, schema, sample, "$"), "") << name;
   }
+}
+
+namespace {
+
+// The lines of a ConfigError's message (one per error).
+std::vector<std::string> error_lines(const std::string& message) {
+  std::vector<std::string> lines;
+  std::istringstream in(message);
+  for (std::string line; std::getline(in, line);)
+    lines.push_back(line);
+  return lines;
+}
+
+}  // namespace
+
+// Several errors in several sections: all of them in one run, one line each, in file order,
+// each naming the file and its key.
+TEST(Config, EveryErrorIsReportedInOneRun) {
+  test::TempDir dir;
+  make_inputs(dir);
+  json j = full_config();
+  j["spacing_mm"] = {1, 1};       // wrong shape
+  j["ct"]["slope"] = 0;           // a check after the type check
+  j["seg"]["tolerance"] = 500;    // out of range
+  j["mask"]["opening_px"] = 1.5;  // wrong type
+  j["pack"]["brick_edge"] = 48;   // not a power of two
+  j["vdb"]["enable"] = true;      // unknown key
+  j["rgb"]["dir"] = "nowhere";    // missing folder
+  const std::string path = write_config(dir, j);
+  const std::vector<std::string> lines = error_lines(config_error(path));
+  const std::vector<std::string> expected = {
+      "vdb.enable: unknown key (did you mean vdb.enabled?)",
+      "spacing_mm: must be an array of 3 numbers",
+      "rgb.dir: folder",
+      "ct.slope: must not be 0",
+      "seg.tolerance: 500 is out of range",
+      "mask.opening_px: must be an integer",
+      "pack.brick_edge: 48 is not a power of two",
+  };
+  ASSERT_EQ(lines.size(), expected.size()) << config_error(path);
+  for (std::size_t i = 0; i < lines.size(); ++i) {
+    EXPECT_EQ(lines[i].rfind(path + ": ", 0), 0u) << lines[i];
+    EXPECT_NE(lines[i].find(expected[i]), std::string::npos)
+        << "line " << i << ": expected '" << expected[i] << "' in '" << lines[i] << "'";
+  }
+  // Each error alone gives its own line only.
+  json one = full_config();
+  one["seg"]["tolerance"] = 500;
+  EXPECT_EQ(error_lines(config_error(write_config(dir, one))).size(), 1u);
+}
+
+// More errors than the limit: the first kMaxConfigErrors lines and one line counting the rest.
+TEST(Config, ErrorsAreListedUpToTheLimit) {
+  test::TempDir dir;
+  make_inputs(dir);
+  json j = full_config();
+  const std::size_t extra = 5;
+  for (std::size_t i = 0; i < kMaxConfigErrors + extra; ++i)
+    j["mask"][cat("zz", i, "_no_such_key_at_all")] = 1;
+  const std::string path = write_config(dir, j);
+  const std::vector<std::string> lines = error_lines(config_error(path));
+  ASSERT_EQ(lines.size(), kMaxConfigErrors + 1) << config_error(path);
+  for (std::size_t i = 0; i < kMaxConfigErrors; ++i)
+    EXPECT_NE(lines[i].find(": unknown key"), std::string::npos) << lines[i];
+  EXPECT_EQ(lines.back(), cat(path, ": ", extra, " more errors not shown (the first ",
+                              kMaxConfigErrors, " are above)"));
+}
+
+// An unknown key names the known key of its object that it most likely misspells; a required
+// key it stands for is not reported missing a second time; a key like no known one gets no guess.
+TEST(Config, UnknownKeyNamesTheNearestKnownKey) {
+  test::TempDir dir;
+  make_inputs(dir);
+  struct Case {
+    std::function<void(json&)> edit;
+    std::vector<std::string> expected;  // the whole error, line by line, after "FILE: "
+  };
+  auto rename = [](json& object, const std::string& from, const std::string& to) {
+    object[to] = object[from];
+    object.erase(from);
+  };
+  const std::vector<Case> cases = {
+      {[&](json& j) { rename(j["ct"], "slice_spacing_mm", "slice_spacing"); },
+       {"ct.slice_spacing: unknown key (did you mean ct.slice_spacing_mm?)"}},
+      {[&](json& j) { rename(j["rgb"], "dir", "dri"); },
+       {"rgb.dri: unknown key (did you mean rgb.dir?)"}},
+      {[&](json& j) { rename(j, "spacing_mm", "Spacing_MM"); },
+       {"Spacing_MM: unknown key (did you mean spacing_mm?)"}},
+      {[&](json& j) { rename(j["mask"], "gel_colour", "gel_color"); },
+       {"mask.gel_color: unknown key (did you mean mask.gel_colour?)"}},
+      {[&](json& j) { j["colour_slices"] = "x"; }, {"colour_slices: unknown key"}},
+      // Two typos in one object and one elsewhere: three lines.
+      {[&](json& j) {
+         rename(j["pack"], "zstd_level", "zstd_levle");
+         rename(j["pack"], "threads", "thread");
+         rename(j["work"], "write_ct", "writ_ct");
+       },
+       {"pack.thread: unknown key (did you mean pack.threads?)",
+        "pack.zstd_levle: unknown key (did you mean pack.zstd_level?)",
+        "work.writ_ct: unknown key (did you mean work.write_ct?)"}},
+  };
+  for (const auto& c : cases) {
+    json j = full_config();
+    c.edit(j);
+    const std::string path = write_config(dir, j);
+    std::vector<std::string> expected;
+    for (const auto& line : c.expected)
+      expected.push_back(path + ": " + line);
+    EXPECT_EQ(error_lines(config_error(path)), expected) << j.dump();
+  }
+  EXPECT_EQ(nearest_key("slice_spacing", {"slice_spacing_mm", "z_offset_mm"}), "slice_spacing_mm");
+  EXPECT_EQ(nearest_key("hieght", {"width", "height"}), "height");
+  EXPECT_EQ(nearest_key("colour", {"dir", "pattern", "raw"}), "");
+  EXPECT_EQ(nearest_key("xt", {"ct"}), "");
 }

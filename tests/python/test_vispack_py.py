@@ -515,6 +515,9 @@ class CommandLine(PackedVolume):
         ref = self.reference["ct", 1][2:9, 5:, ::2]
         got = np.fromfile(out, "<i2")
         np.testing.assert_array_equal(got, ref.ravel())
+        # One line names the file written, with what it holds.
+        self.assertEqual(p.stdout.splitlines()[-1],
+                         f"wrote {out} (ct, level 1, shape [z, y, x] {list(ref.shape)}, <i2)")
         p = subprocess.run([sys.executable, script, self.path, "--channel", "nope", "--raw", out],
                            capture_output=True, text=True)
         self.assertEqual(p.returncode, 2, p.stderr)

@@ -2,8 +2,10 @@
 #include "vispack/pipeline/core/config.h"
 
 #include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <filesystem>
+#include <limits>
 #include <set>
 
 #include "vispack/common/atomic_file.h"
@@ -28,15 +30,59 @@ std::string type_name(const json& v) {
   return "an object";
 }
 
+// The errors found in one config file, in the order found. A "missing (required)" error for a key
+// that an unknown key's did-you-mean already names is not listed twice.
+class ErrorLog {
+ public:
+  explicit ErrorLog(const std::string& file) : file_(file) {}
+  void add_line(const std::string& line) { lines_.push_back(line); }
+  void add(const std::string& key_path, const std::string& message) {
+    add_line(cat(file_, ": ", key_path, ": ", message));
+  }
+  std::size_t count() const { return lines_.size() + quiet_; }
+  void count_quietly() { ++quiet_; }
+  void suggested(const std::string& key_path) { suggested_.insert(key_path); }
+  bool was_suggested(const std::string& key_path) const { return suggested_.count(key_path) > 0; }
+  void unknown(const std::string& key_path) { unknown_.insert(key_path); }
+  bool known_unknown(const std::string& key_path) const { return unknown_.count(key_path) > 0; }
+
+  // Throws one ConfigError listing every error (at most kMaxConfigErrors lines and a count of the
+  // rest); does nothing when there is none.
+  void throw_if_any() const {
+    if (count() == 0) return;
+    std::string text;
+    const std::size_t shown = std::min(lines_.size(), kMaxConfigErrors);
+    for (std::size_t i = 0; i < shown; ++i)
+      text += (i ? "\n" : "") + lines_[i];
+    if (lines_.size() > shown)
+      text += cat("\n", file_, ": ", lines_.size() - shown, " more error",
+                  lines_.size() - shown == 1 ? "" : "s", " not shown (the first ", shown,
+                  " are above)");
+    throw ConfigError(text);
+  }
+
+ private:
+  const std::string& file_;
+  std::vector<std::string> lines_;
+  std::size_t quiet_ = 0;
+  std::set<std::string> suggested_, unknown_;
+};
+
+// A required key that is absent but already named by an unknown key's did-you-mean: counted, not
+// listed again.
+struct AlreadyReported {};
+
 // Walks one JSON object, checking each key it is asked for and, at the end, that no other key
-// is present (keys starting with '_' are comments and ignored).
+// is present (keys starting with '_' are comments and ignored). A key at fault is logged and
+// stands in with its default (or a placeholder when it has none), so that every key of the file
+// is checked in one run; the checks that need several keys run only when those keys were sound.
 class Section {
  public:
-  Section(const json& object, std::string path, const std::string& file)
-      : object_(object), path_(std::move(path)), file_(file) {
+  Section(const json& object, std::string path, ErrorLog& log, const std::string& file)
+      : object_(object), path_(std::move(path)), file_(file), log_(log) {
     if (!object_.is_object())
-      fail_at(path_.empty() ? "(top level)" : path_,
-              cat("must be an object, got ", type_name(object_)));
+      log_.add(path_.empty() ? "(top level)" : path_,
+               cat("must be an object, got ", type_name(object_)));
   }
 
   std::string key_path(const std::string& key) const {
@@ -49,104 +95,152 @@ class Section {
   [[noreturn]] void fail(const std::string& key, const std::string& message) const {
     fail_at(key_path(key), message);
   }
+  // Logs an error and goes on.
+  void report(const std::string& key, const std::string& message) const {
+    log_.add(key_path(key), message);
+  }
+  // Logs a required key's absence unless an unknown key's did-you-mean already named it.
+  void report_missing(const std::string& key, const std::string& message) const {
+    if (log_.was_suggested(key_path(key)))
+      log_.count_quietly();
+    else
+      report(key, message);
+  }
+  // Errors logged so far in the whole file (compare two counts to see whether keys were sound).
+  std::size_t errors() const { return log_.count(); }
 
   const json* find(const std::string& key) {
     seen_.insert(key);
+    if (!object_.is_object()) return nullptr;
     auto it = object_.find(key);
     if (it == object_.end()) return nullptr;
     return &*it;
   }
-  bool has(const std::string& key) const { return object_.contains(key); }
+  bool has(const std::string& key) const { return object_.is_object() && object_.contains(key); }
 
   std::string string(const std::string& key, std::optional<std::string> fallback) {
-    const json* v = find(key);
-    if (!v) {
-      if (!fallback) fail(key, "missing (required)");
-      return *fallback;
-    }
-    if (!v->is_string()) fail(key, cat("must be a string, got ", type_name(*v)));
-    return v->get<std::string>();
+    return guarded(fallback.value_or(""), [&] {
+      const json* v = find(key);
+      if (!v) {
+        if (!fallback) missing(key);
+        return *fallback;
+      }
+      if (!v->is_string()) fail(key, cat("must be a string, got ", type_name(*v)));
+      return v->get<std::string>();
+    });
   }
   std::string choice(const std::string& key, const std::vector<std::string>& allowed,
                      const std::string& fallback) {
     std::string value = string(key, fallback);
-    for (const auto& a : allowed)
-      if (a == value) return value;
-    std::string list;
-    for (const auto& a : allowed)
-      list += (list.empty() ? "\"" : ", \"") + a + "\"";
-    fail(key, cat("\"", value, "\" is not one of ", list));
+    return guarded(fallback, [&] {
+      for (const auto& a : allowed)
+        if (a == value) return value;
+      std::string list;
+      for (const auto& a : allowed)
+        list += (list.empty() ? "\"" : ", \"") + a + "\"";
+      fail(key, cat("\"", value, "\" is not one of ", list));
+    });
   }
   bool boolean(const std::string& key, bool fallback) {
-    const json* v = find(key);
-    if (!v) return fallback;
-    if (!v->is_boolean()) fail(key, cat("must be true or false, got ", type_name(*v)));
-    return v->get<bool>();
+    return guarded(fallback, [&] {
+      const json* v = find(key);
+      if (!v) return fallback;
+      if (!v->is_boolean()) fail(key, cat("must be true or false, got ", type_name(*v)));
+      return v->get<bool>();
+    });
   }
   double number(const std::string& key, std::optional<double> fallback, double lo, double hi,
                 bool exclusive_lo = false) {
-    const json* v = find(key);
-    if (!v) {
-      if (!fallback) fail(key, "missing (required)");
-      return *fallback;
-    }
-    if (!v->is_number()) fail(key, cat("must be a number, got ", type_name(*v)));
-    double x = v->get<double>();
-    check_range(key_path(key), x, lo, hi, exclusive_lo);
-    return x;
+    return guarded(fallback.value_or(placeholder(lo, hi)), [&] {
+      const json* v = find(key);
+      if (!v) {
+        if (!fallback) missing(key);
+        return *fallback;
+      }
+      if (!v->is_number()) fail(key, cat("must be a number, got ", type_name(*v)));
+      double x = v->get<double>();
+      check_range(key_path(key), x, lo, hi, exclusive_lo);
+      return x;
+    });
   }
   long long integer(const std::string& key, std::optional<long long> fallback, long long lo,
                     long long hi) {
-    const json* v = find(key);
-    if (!v) {
-      if (!fallback) fail(key, "missing (required)");
-      return *fallback;
-    }
-    if (!v->is_number_integer() && !v->is_number_unsigned())
-      fail(key, cat("must be an integer, got ", type_name(*v)));
-    long long x = v->is_number_unsigned()
-                      ? (long long)std::min<std::uint64_t>(v->get<std::uint64_t>(), 1ULL << 62)
-                      : v->get<long long>();
-    if (x < lo || x > hi) fail(key, cat(x, " is out of range [", lo, ", ", hi, "]"));
-    return x;
+    return guarded(fallback.value_or(lo), [&] {
+      const json* v = find(key);
+      if (!v) {
+        if (!fallback) missing(key);
+        return *fallback;
+      }
+      if (!v->is_number_integer() && !v->is_number_unsigned())
+        fail(key, cat("must be an integer, got ", type_name(*v)));
+      long long x = v->is_number_unsigned()
+                        ? (long long)std::min<std::uint64_t>(v->get<std::uint64_t>(), 1ULL << 62)
+                        : v->get<long long>();
+      if (x < lo || x > hi) fail(key, cat(x, " is out of range [", lo, ", ", hi, "]"));
+      return x;
+    });
   }
   template <std::size_t N>
   std::array<double, N> numbers(const std::string& key,
                                 std::optional<std::array<double, N>> fallback, double lo, double hi,
                                 bool exclusive_lo) {
-    const json* v = find(key);
-    if (!v) {
-      if (!fallback) fail(key, "missing (required)");
-      return *fallback;
-    }
-    if (!v->is_array() || v->size() != N) fail(key, cat("must be an array of ", N, " numbers"));
-    std::array<double, N> out{};
-    for (std::size_t i = 0; i < N; ++i) {
-      std::string element = cat(key_path(key), "[", i, "]");
-      if (!(*v)[i].is_number()) fail_at(element, cat("must be a number, got ", type_name((*v)[i])));
-      out[i] = (*v)[i].get<double>();
-      check_range(element, out[i], lo, hi, exclusive_lo);
-    }
-    return out;
+    std::array<double, N> stand_in{};
+    stand_in.fill(placeholder(lo, hi));
+    return guarded(fallback.value_or(stand_in), [&] {
+      const json* v = find(key);
+      if (!v) {
+        if (!fallback) missing(key);
+        return *fallback;
+      }
+      if (!v->is_array() || v->size() != N) fail(key, cat("must be an array of ", N, " numbers"));
+      std::array<double, N> out{};
+      for (std::size_t i = 0; i < N; ++i) {
+        std::string element = cat(key_path(key), "[", i, "]");
+        if (!(*v)[i].is_number())
+          fail_at(element, cat("must be a number, got ", type_name((*v)[i])));
+        out[i] = (*v)[i].get<double>();
+        check_range(element, out[i], lo, hi, exclusive_lo);
+      }
+      return out;
+    });
   }
   Section child(const std::string& key) {
     const json* v = find(key);
     static const json empty = json::object();
-    return Section(v ? *v : empty, key_path(key), file_);
+    return Section(v ? *v : empty, key_path(key), log_, file_);
   }
 
-  // Unknown keys are errors; call once every known key was asked for.
+  // Unknown keys are errors (check_unknown_keys has named most, with a did-you-mean); call once
+  // every known key was asked for.
   void finish() const {
+    if (!object_.is_object()) return;
     for (auto it = object_.begin(); it != object_.end(); ++it) {
       const std::string& key = it.key();
       if (!key.empty() && key[0] == '_') continue;
-      if (!seen_.count(key)) fail(key, "unknown key");
+      if (!seen_.count(key) && !log_.known_unknown(key_path(key))) report(key, "unknown key");
     }
   }
 
   const std::string& file() const { return file_; }
 
  private:
+  // Runs one key's check; an error is logged and `stand_in` returned in place of the value.
+  template <class T, class Body>
+  T guarded(T stand_in, Body body) {
+    try {
+      return body();
+    } catch (const AlreadyReported&) {
+      log_.count_quietly();
+    } catch (const ConfigError& e) {
+      log_.add_line(e.what());
+    }
+    return stand_in;
+  }
+  [[noreturn]] void missing(const std::string& key) const {
+    if (log_.was_suggested(key_path(key))) throw AlreadyReported{};
+    fail(key, "missing (required)");
+  }
+  static double placeholder(double lo, double hi) { return std::clamp(1.0, lo, hi); }
   void check_range(const std::string& where, double x, double lo, double hi,
                    bool exclusive_lo) const {
     if (!std::isfinite(x) || x < lo || x > hi || (exclusive_lo && x == lo))
@@ -155,6 +249,7 @@ class Section {
   const json& object_;
   std::string path_;
   const std::string& file_;
+  ErrorLog& log_;
   std::set<std::string> seen_;
 };
 
@@ -169,38 +264,43 @@ RawLayout parse_raw(Section s, int default_channels) {
   raw.width = int(s.integer("width", std::nullopt, 1, 65536));
   raw.height = int(s.integer("height", std::nullopt, 1, 65536));
   raw.channels = int(s.integer("channels", default_channels, 1, 3));
-  if (raw.channels == 2) s.fail("channels", "must be 1 or 3");
+  if (raw.channels == 2) s.report("channels", "must be 1 or 3");
   raw.planar = s.choice("layout", {"planar", "interleaved"}, "interleaved") == "planar";
   raw.bits = int(s.integer("bits", 8, 8, 16));
-  if (raw.bits != 8 && raw.bits != 16) s.fail("bits", "must be 8 or 16");
+  if (raw.bits != 8 && raw.bits != 16) s.report("bits", "must be 8 or 16");
   raw.big_endian = s.choice("endian", {"little", "big"}, "little") == "big";
   raw.header_bytes = std::uint64_t(s.integer("header_bytes", 0, 0, 1LL << 40));
   s.finish();
   return raw;
 }
 
-// dir, pattern and raw of a slice folder; the folder must exist and the pattern match a file.
+// dir, pattern and raw of a slice folder; the folder must exist and the pattern match a file
+// (checked once the keys themselves are sound).
 void parse_source(Section& s, SliceSource& source, const std::string& base,
                   const std::string& default_pattern, int default_channels) {
+  const std::size_t errors_before = s.errors();
   std::string dir = s.string("dir", std::nullopt);
   source.dir = resolve(base, dir);
   source.pattern = s.string("pattern", default_pattern);
   if (source.pattern.find("{n}") == std::string::npos)
-    s.fail("pattern", cat("\"", source.pattern, "\" has no {n} where the slice number stands"));
+    s.report("pattern", cat("\"", source.pattern, "\" has no {n} where the slice number stands"));
   if (s.has("raw")) source.raw = parse_raw(s.child("raw"), default_channels);
+  if (s.errors() != errors_before) return;
   std::error_code ec;
-  if (!fs::is_directory(source.dir, ec))
-    s.fail("dir", cat("folder ", source.dir, " does not exist"));
+  if (!fs::is_directory(source.dir, ec)) {
+    s.report("dir", cat("folder ", source.dir, " does not exist"));
+    return;
+  }
   try {
     (void)list_slices(source);
   } catch (const ConfigError& e) {
-    s.fail("pattern", e.what());
+    s.report("pattern", e.what());
   }
 }
 
 void require_file(Section& s, const std::string& key, const std::string& path) {
   std::error_code ec;
-  if (!fs::is_regular_file(path, ec)) s.fail(key, cat("file ", path, " does not exist"));
+  if (!fs::is_regular_file(path, ec)) s.report(key, cat("file ", path, " does not exist"));
 }
 
 // Drops every key starting with '_' (comments), recursively, for hashing.
@@ -252,7 +352,9 @@ const std::vector<std::pair<std::string, std::vector<std::string>>>& known_keys(
   return table;
 }
 
-void check_unknown_keys(const json& node, const std::string& path, const std::string& file) {
+// Logs every unknown key of `node` (the object at key path `path`) and below, each with the known
+// key of its object nearest in spelling when one is near enough to be the key meant.
+void check_unknown_keys(const json& node, const std::string& path, ErrorLog& log) {
   for (const auto& [object, keys] : known_keys()) {
     if (object != path) continue;
     if (!node.is_object()) return;  // the type error is reported by the parser
@@ -260,9 +362,27 @@ void check_unknown_keys(const json& node, const std::string& path, const std::st
       const std::string& key = it.key();
       if (!key.empty() && key[0] == '_') continue;
       std::string child = path.empty() ? key : path + "." + key;
-      if (std::find(keys.begin(), keys.end(), key) == keys.end())
-        throw ConfigError(cat(file, ": ", child, ": unknown key"));
-      check_unknown_keys(it.value(), child, file);
+      if (std::find(keys.begin(), keys.end(), key) != keys.end()) {
+        check_unknown_keys(it.value(), child, log);
+        continue;
+      }
+      log.unknown(child);
+      if (child == "ct.slice_offset") {
+        // CT slices are placed along z by ct.slice_spacing_mm and ct.z_offset_mm, one way to say
+        // one thing; the index offset that came before them is named with its replacement.
+        log.add(child,
+                "replaced by ct.z_offset_mm (CT slice k + slice_offset on colour slice k is "
+                "z_offset_mm = -slice_offset x ct.slice_spacing_mm)");
+        continue;
+      }
+      const std::string near = nearest_key(key, keys);
+      if (near.empty()) {
+        log.add(child, "unknown key");
+        continue;
+      }
+      const std::string near_path = path.empty() ? near : path + "." + near;
+      log.add(child, cat("unknown key (did you mean ", near_path, "?)"));
+      if (!node.contains(near)) log.suggested(near_path);
     }
   }
 }
@@ -284,19 +404,60 @@ void check_outputs_apart_from_inputs(const Config& config, const Section& top) {
   if (!config.vdb_output.empty()) outputs.emplace_back("vdb_output", config.vdb_output);
   for (const auto& [key, out] : outputs) {
     for (const auto& [what, in] : files)
-      if (same(out, in)) top.fail(key, cat(out, " is ", what, ", an input"));
+      if (same(out, in)) top.report(key, cat(out, " is ", what, ", an input"));
     for (const auto& [what, dir] : folders)
       if (same(fs::path(out).parent_path().string(), dir))
-        top.fail(key, cat(out, " lies in the input slice folder ", what, " (", dir, ")"));
+        top.report(key, cat(out, " lies in the input slice folder ", what, " (", dir, ")"));
     std::error_code ec;
-    if (fs::is_directory(out, ec)) top.fail(key, cat(out, " is a folder, not a file"));
+    if (fs::is_directory(out, ec)) top.report(key, cat(out, " is a folder, not a file"));
   }
   for (const auto& [what, dir] : folders)
     if (same(config.work_dir, dir))
-      top.fail("work_dir", cat(config.work_dir, " is the input slice folder ", what));
+      top.report("work_dir", cat(config.work_dir, " is the input slice folder ", what));
 }
 
 }  // namespace
+
+std::string nearest_key(const std::string& key, const std::vector<std::string>& candidates) {
+  auto lower = [](std::string text) {
+    std::transform(text.begin(), text.end(), text.begin(),
+                   [](unsigned char c) { return char(std::tolower(c)); });
+    return text;
+  };
+  // Optimal string alignment distance: insertions, deletions, substitutions and swaps of two
+  // neighbouring letters cost 1 each.
+  auto distance = [](const std::string& a, const std::string& b) {
+    const std::size_t n = a.size(), m = b.size();
+    std::vector<std::vector<std::size_t>> d(n + 1, std::vector<std::size_t>(m + 1, 0));
+    for (std::size_t i = 0; i <= n; ++i)
+      d[i][0] = i;
+    for (std::size_t j = 0; j <= m; ++j)
+      d[0][j] = j;
+    for (std::size_t i = 1; i <= n; ++i)
+      for (std::size_t j = 1; j <= m; ++j) {
+        const std::size_t cost = a[i - 1] == b[j - 1] ? 0 : 1;
+        d[i][j] = std::min({d[i - 1][j] + 1, d[i][j - 1] + 1, d[i - 1][j - 1] + cost});
+        if (i > 1 && j > 1 && a[i - 1] == b[j - 2] && a[i - 2] == b[j - 1])
+          d[i][j] = std::min(d[i][j], d[i - 2][j - 2] + 1);
+      }
+    return d[n][m];
+  };
+  const std::string wanted = lower(key);
+  std::string best;
+  std::size_t best_distance = std::numeric_limits<std::size_t>::max();
+  for (const auto& candidate : candidates) {
+    const std::string c = lower(candidate);
+    const std::size_t d = distance(wanted, c);
+    const bool prefix = wanted.size() >= 3 && c.compare(0, wanted.size(), wanted) == 0;
+    const bool near =
+        (d <= 2 && wanted.size() >= 4) || 3 * d <= std::max(wanted.size(), c.size()) || prefix;
+    if (near && d < best_distance) {
+      best = candidate;
+      best_distance = d;
+    }
+  }
+  return best;
+}
 
 std::vector<std::string> config_key_paths() {
   std::vector<std::string> out;
@@ -316,7 +477,7 @@ void parse_ct_section(Section& top, Config& config, const std::string& base) {
     parse_source(s, ct, base, "ct_{n}.png", 1);
     ct.pixel_spacing_mm = s.numbers<2>("pixel_spacing_mm", std::nullopt, 0.0, 1e6, true);
     ct.slope = s.number("slope", 1.0, -1e6, 1e6);
-    if (ct.slope == 0) s.fail("slope", "must not be 0");
+    if (ct.slope == 0) s.report("slope", "must not be 0");
     ct.intercept = s.number("intercept", -1024.0, -1e6, 1e6);
     ct.slice_spacing_mm = s.number("slice_spacing_mm", config.spacing_mm[2], 0.0, 1e6, true);
     ct.z_offset_mm = s.number("z_offset_mm", 0.0, -1e9, 1e9);
@@ -338,7 +499,7 @@ void parse_seg_section(Section& top, Config& config, const std::string& base) {
       seg.palette = resolve(base, s.string("palette", std::nullopt));
       require_file(s, "palette", seg.palette);
     } else if (seg.mode == "colour") {
-      s.fail("palette", "missing (required in mode \"colour\")");
+      s.report_missing("palette", "missing (required in mode \"colour\")");
     } else {
       s.find("palette");
     }
@@ -348,12 +509,12 @@ void parse_seg_section(Section& top, Config& config, const std::string& base) {
       seg.slice_spacing_mm = s.number("slice_spacing_mm", std::nullopt, 0.0, 1e6, true);
       seg.z_offset_mm = s.number("z_offset_mm", 0.0, -1e9, 1e9);
     } else if (s.has("z_offset_mm")) {
-      s.fail("z_offset_mm",
-             "needs seg.slice_spacing_mm (without it segmentation slices are matched to colour "
-             "slices by file number)");
+      s.report("z_offset_mm",
+               "needs seg.slice_spacing_mm (without it segmentation slices are matched to colour "
+               "slices by file number)");
     }
     if (s.has("id_map")) {
-      if (seg.mode != "id") s.fail("id_map", "only allowed in mode \"id\"");
+      if (seg.mode != "id") s.report("id_map", "only allowed in mode \"id\"");
       seg.id_map = resolve(base, s.string("id_map", std::nullopt));
       require_file(s, "id_map", seg.id_map);
     } else {
@@ -386,7 +547,8 @@ void parse_register_section(Section& top, Config& config, const std::string& bas
   }
   r.anchor = s.choice("anchor", {"auto", "ct", "fiducials", "none"}, "auto");
   r.ct_anchor_between = s.choice("ct_anchor_between", {"nearest", "interpolated"}, "nearest");
-  if (r.anchor == "ct" && !config.ct) s.fail("anchor", "\"ct\" needs a \"ct\" section (CT slices)");
+  if (r.anchor == "ct" && !(top.has("ct") && !config.raw_json["ct"].is_null()))
+    s.report("anchor", "\"ct\" needs a \"ct\" section (CT slices)");
   if (s.has("overrides")) {
     r.overrides = resolve(base, s.string("overrides", std::nullopt));
     require_file(s, "overrides", r.overrides);
@@ -406,8 +568,7 @@ void parse_mask_section(Section& top, Config& config) {
     auto c = s.numbers<3>("gel_colour", std::nullopt, 0.0, 255.0, false);
     std::array<int, 3> gel{};
     for (int i = 0; i < 3; ++i) {
-      if (c[i] != std::floor(c[i]))
-        s.fail_at(cat(s.key_path("gel_colour"), "[", i, "]"), "must be an integer");
+      if (c[i] != std::floor(c[i])) s.report(cat("gel_colour[", i, "]"), "must be an integer");
       gel[i] = int(c[i]);
     }
     m.gel_colour = gel;
@@ -424,7 +585,7 @@ void parse_pack_section(Section& top, Config& config) {
   auto& p = config.pack;
   p.brick_edge = int(s.integer("brick_edge", 64, 8, 256));
   if ((p.brick_edge & (p.brick_edge - 1)) != 0)
-    s.fail("brick_edge", cat(p.brick_edge, " is not a power of two"));
+    s.report("brick_edge", cat(p.brick_edge, " is not a power of two"));
   p.zstd_level = int(s.integer("zstd_level", 3, 0, 22));
   p.downsample = int(s.integer("downsample", 1, 1, 64));
   p.threads = int(s.integer("threads", 0, 0, 4096));
@@ -450,7 +611,7 @@ void parse_work_section(Section& top, Config& config) {
   w.write_ct = s.boolean("write_ct", false);
   w.overlay_max_px = int(s.integer("overlay_max_px", 1024, 0, 65536));
   if (w.overlay_max_px > 0 && w.overlay_max_px < 16)
-    s.fail("overlay_max_px", cat(w.overlay_max_px, " is too small (0 = full size, else >= 16)"));
+    s.report("overlay_max_px", cat(w.overlay_max_px, " is too small (0 = full size, else >= 16)"));
   s.finish();
 }
 
@@ -460,8 +621,8 @@ void parse_vdb_section(Section& top, Config& config) {
   if (const json* level = s.find("level"); level && !level->is_null()) {
     if (level->is_string()) {
       if (level->get<std::string>() != "auto")
-        s.fail("level",
-               cat("\"", level->get<std::string>(), "\" is not a level (0..15 or \"auto\")"));
+        s.report("level",
+                 cat("\"", level->get<std::string>(), "\" is not a level (0..15 or \"auto\")"));
     } else {
       config.vdb.level = int(s.integer("level", 0, 0, 15));
     }
@@ -486,28 +647,27 @@ Config load_config(const std::string& path) {
   }
   const std::string& file = config.path;
   const std::string base = fs::path(config.path).parent_path().string();
-  // CT slices are placed along z by ct.slice_spacing_mm and ct.z_offset_mm, one way to
-  // say one thing; the index offset that came before them is named with its replacement.
-  if (config.raw_json.is_object() && config.raw_json.contains("ct") &&
-      config.raw_json["ct"].is_object() && config.raw_json["ct"].contains("slice_offset"))
-    throw ConfigError(cat(file,
-                          ": ct.slice_offset: replaced by ct.z_offset_mm (CT slice k + "
-                          "slice_offset on colour slice k is z_offset_mm = -slice_offset x "
-                          "ct.slice_spacing_mm)"));
-  check_unknown_keys(config.raw_json, "", file);
-  Section top(config.raw_json, "", file);
+  if (!config.raw_json.is_object())
+    throw ConfigError(
+        cat(file, ": (top level): must be an object, got ", type_name(config.raw_json)));
+  // Every error is logged and the checks go on, so that one run lists them all.
+  ErrorLog log(file);
+  check_unknown_keys(config.raw_json, "", log);
+  Section top(config.raw_json, "", log, file);
 
   config.name = top.string("name", fs::path(config.path).stem().string());
-  if (config.name.empty()) top.fail("name", "must not be empty");
+  if (config.name.empty()) top.report("name", "must not be empty");
   config.work_dir = resolve(base, top.string("work_dir", "work"));
   config.output = resolve(base, top.string("output", "out/" + config.name + ".vpk"));
   config.spacing_mm = top.numbers<3>("spacing_mm", std::nullopt, 0.0, 1e6, true);
 
-  {
+  if (top.has("rgb")) {
     Section s = top.child("rgb");
-    if (!top.has("rgb")) top.fail("rgb", "missing (required)");
     parse_source(s, config.rgb, base, "rgb_{n}.png", 3);
     s.finish();
+  } else {
+    top.find("rgb");
+    top.report_missing("rgb", "missing (required)");
   }
   parse_ct_section(top, config, base);
   parse_seg_section(top, config, base);
@@ -520,9 +680,11 @@ Config load_config(const std::string& path) {
   std::string vdb_output = top.string("vdb_output", default_vdb);
   config.vdb_output = config.vdb.enabled ? resolve(base, vdb_output) : "";
   if (config.vdb.enabled && config.vdb_output == config.output)
-    top.fail("vdb_output", "must differ from output");
-  check_outputs_apart_from_inputs(config, top);
+    top.report("vdb_output", "must differ from output");
+  // Outputs against inputs: only once every path is known to be sound.
+  if (log.count() == 0) check_outputs_apart_from_inputs(config, top);
   top.finish();
+  log.throw_if_any();
   return config;
 }
 

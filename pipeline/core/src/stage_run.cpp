@@ -21,6 +21,7 @@
 #include "vispack/common/test_pause.h"
 #include "vispack/pipeline/core/version.h"
 #include "vispack/pipeline/core/work_layout.h"
+#include "vispack/pipeline/core/work_lock.h"
 
 namespace vispack::pipeline {
 
@@ -348,6 +349,7 @@ int stage_main(const std::string& program, int argc, char** argv, const std::str
       options.threads = int(*threads);
     }
     Config config = load_config(*config_path);
+    const auto lock = WorkFolderLock::acquire(config.work_dir, options.slices);
     keep_slice_buffers();
     StageResult result = body(config, options);
     if (!options.quiet) {

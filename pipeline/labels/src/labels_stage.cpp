@@ -3,6 +3,7 @@
 #include "vispack/pipeline/labels/labels_stage.h"
 
 #include <filesystem>
+#include <set>
 
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
@@ -18,31 +19,40 @@ namespace vispack::pipeline {
 namespace fs = std::filesystem;
 using nlohmann::json;
 
+void check_seg_numbers_match(const Config& config, const std::vector<SliceFile>& stack,
+                             const std::vector<SliceFile>& seg_files) {
+  // Matched by file number: a segmentation of fewer slices than half the colour stack's is a
+  // stack at another spacing, never to be paired by number (issue 31).
+  std::set<std::pair<int, int>> numbers;
+  for (const auto& f : seg_files)
+    numbers.insert({f.number, f.letter});
+  int matched = 0;
+  for (const auto& f : stack)
+    matched += numbers.count({f.number, f.letter}) ? 1 : 0;
+  const int n = int(stack.size());
+  if (n > 1 && 2 * matched < n)
+    throw ConfigError(cat(config.path, ": seg: ", numbers.size(), " slices, of which ", matched,
+                          " match the number of one of the colour stack's ", n,
+                          " slices; set seg.slice_spacing_mm (and seg.z_offset_mm) to place "
+                          "them along z"));
+}
+
 LabelsStageJob::LabelsStageJob(const Config& config, const StageOptions& options)
     : config_(config) {
   if (!config.seg)
     throw ConfigError(cat(config.path, ": seg: not configured (no segmentation to map)"));
   const SegSource& seg = *config.seg;
   stack_ = stack_slices(config);
-  const int n = int(stack_.size());
   if (seg.slice_spacing_mm) {
     // Each colour slice takes the segmentation slice nearest in z (slice_z.h; docs/ARCHITECTURE.md,
     // 'Each input at its own z').
     seg_files_ = list_slices(seg);
     check_no_missing_slice(seg, seg_files_, "segmentation");
   } else {
-    for (const auto& f : list_slices(seg))
+    const std::vector<SliceFile> seg_files = list_slices(seg);
+    check_seg_numbers_match(config, stack_, seg_files);
+    for (const auto& f : seg_files)
       seg_by_number_[{f.number, f.letter}] = f.path;
-    // Matched by file number: a segmentation of fewer slices than half the colour stack's is a
-    // stack at another spacing, never to be paired by number (slice_z.h).
-    int matched = 0;
-    for (const auto& f : stack_)
-      matched += seg_by_number_.count({f.number, f.letter}) ? 1 : 0;
-    if (n > 1 && 2 * matched < n)
-      throw ConfigError(cat(config.path, ": seg: ", seg_by_number_.size(), " slices, of which ",
-                            matched, " match the number of one of the colour stack's ", n,
-                            " slices; set seg.slice_spacing_mm (and seg.z_offset_mm) to place "
-                            "them along z"));
   }
 
   // Transforms: from the register stage, or identities when registration is disabled.

@@ -4,6 +4,7 @@
 #include "vispack/common/cli.h"
 #include "vispack/common/error.h"
 #include "vispack/pipeline/core/stage_run.h"
+#include "vispack/pipeline/core/work_lock.h"
 #include "vispack/pipeline/pack/pack.h"
 
 int main(int argc, char** argv) {
@@ -40,6 +41,7 @@ int main(int argc, char** argv) {
     if (merge && !options.slices.empty())
       throw UsageError("--merge takes no --slices: it builds the whole file from every shard");
     Config config = load_config(*config_path);
+    const auto lock = WorkFolderLock::acquire(config.work_dir, options.slices);
     keep_slice_buffers();
     StageResult result = merge ? run_pack_merge(config, options) : run_pack_stage(config, options);
     if (!options.quiet) {

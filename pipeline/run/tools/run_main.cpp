@@ -5,6 +5,8 @@
 #include "vispack/common/error.h"
 #include "vispack/pipeline/core/stage_run.h"
 #include "vispack/pipeline/core/work_layout.h"
+#include "vispack/pipeline/core/work_lock.h"
+#include "vispack/pipeline/run/plan.h"
 #include "vispack/pipeline/run/run.h"
 
 int main(int argc, char** argv) {
@@ -37,10 +39,14 @@ int main(int argc, char** argv) {
                                "the work folder (instead of the one streaming pass)");
     auto threads =
         args.option_int("--threads", "N", "threads in all, this one included (default: all cores)");
-    const bool plan = args.flag("--plan",
-                                "print \"slices N\", \"stages ...\" (the stages the config "
-                                "enables) and \"pack_slab_slices E\" (slices per level-0 slab "
-                                "of the pack) and exit: for schedulers (scripts/vispack-slurm)");
+    const bool plan = args.flag(
+        "--plan",
+        "the dry run: check the config, read the first and the last slice of every input "
+        "folder (and the colour stack's middle one, as register does), print \"slices N\", "
+        "\"stages ...\" (the stages the config enables), \"pack_slab_slices E\" (slices per "
+        "level-0 slab of the pack) and one \"input ...\" line per folder, and exit: a wrong "
+        "raw size, layout or header or a file that is not an image fails here with the run's "
+        "error; writes nothing");
     std::string config_path = args.positional("CONFIG", "pipeline config (JSON)");
     args.done();
     if (threads) {
@@ -49,15 +55,13 @@ int main(int argc, char** argv) {
     }
     pipeline::Config config = pipeline::load_config(config_path);
     if (plan) {
-      std::cout << "slices " << pipeline::stack_slices(config).size() << "\nstages";
-      for (const auto& name : pipeline::pipeline_stage_names()) {
-        if (name == "labels" && !config.seg) continue;
-        if (name == "vdb" && (!config.vdb.enabled || config.vdb_output.empty())) continue;
-        std::cout << " " << name;
-      }
-      std::cout << "\npack_slab_slices " << config.pack.brick_edge << "\n";
+      const pipeline::Plan p = pipeline::plan_run(config);
+      for (const auto& w : p.warnings)
+        std::cerr << "vispack-run: warning: " << w << "\n";
+      std::cout << pipeline::format_plan(p);
       return 0;
     }
+    const auto lock = pipeline::WorkFolderLock::acquire(config.work_dir, options.slices);
     pipeline::keep_slice_buffers();
     for (const auto& r : pipeline::run_pipeline(config, options)) {
       std::cout << r.stage << ": " << (r.processed ? "ran" : "up to date") << " (" << r.processed

@@ -11,7 +11,8 @@
 //       return 0;
 //     });
 //   }
-// Errors are printed as one line, "<program>: error: <message>", and mapped to exit codes
+// Errors are printed as one line, "<program>: error: <message>" (one such line per line of a
+// message that holds several, e.g. every error of a config file), and mapped to exit codes
 // (exit_codes.h).
 #pragma once
 

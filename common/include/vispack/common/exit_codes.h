@@ -13,6 +13,7 @@ enum class ExitCode : int {
   kInvalidFile = 4,   // a file is corrupt, truncated or hostile; --verify found a bad brick
   kConfig = 5,        // invalid configuration
   kInput = 6,         // unusable input slices
+  kBusy = 7,          // the work folder is in use by another run (pipeline/core/work_lock.h)
   kInterrupted = 130  // SIGINT
 };
 

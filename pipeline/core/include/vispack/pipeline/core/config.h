@@ -3,11 +3,16 @@
 //
 // load_config() checks every key: an unknown key, a wrong type, a value out of range, a missing
 // folder or a pattern that matches no file is a ConfigError naming the key (as a JSON path such
-// as "ct.pixel_spacing_mm") or the path. Relative paths are resolved against the config file's
-// folder; every path in Config is absolute. Defaults fill every key that has a sensible default.
+// as "ct.pixel_spacing_mm") or the path. Every error in the file is reported at once: the
+// ConfigError's message holds one line per error ("FILE: KEY: MESSAGE", in the order found, at
+// most kMaxConfigErrors lines and then one line counting the rest); an unknown key names the known
+// key of its object nearest in spelling ("did you mean ct.slice_spacing_mm?"). Relative paths are
+// resolved against the config file's folder; every path in Config is absolute. Defaults fill
+// every key that has a sensible default.
 #pragma once
 
 #include <array>
+#include <cstddef>
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -160,8 +165,17 @@ struct Config {
   nlohmann::json raw_json;  // the file as read, for hashing sections into reports
 };
 
-// Loads and validates a config file. Throws ConfigError (bad content) or IoError (unreadable).
+// The most errors one ConfigError lists line by line.
+inline constexpr std::size_t kMaxConfigErrors = 20;
+
+// Loads and validates a config file. Throws ConfigError (bad content: every error found, one line
+// each, see above) or IoError (unreadable).
 Config load_config(const std::string& path);
+
+// The candidate nearest to `key` in spelling (optimal-string-alignment edit distance, case
+// ignored; a candidate that starts with `key` counts as near), or "" when none is near enough to
+// be the key meant: distance at most 2, or at most a third of the longer name.
+std::string nearest_key(const std::string& key, const std::vector<std::string>& candidates);
 
 // The config as JSON in the loader's schema: every key written with its value (defaults
 // included), paths relative to `base_dir` (default: the folder of config.path; absolute paths

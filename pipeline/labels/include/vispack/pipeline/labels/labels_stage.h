@@ -30,6 +30,12 @@ namespace vispack::pipeline {
 // false). Throws InputError (unmatched colour in strict mode, seg slice of the wrong size).
 StageResult run_labels_stage(const Config& config, const StageOptions& options);
 
+// Without seg.slice_spacing_mm segmentation slices pair with colour slices by file number:
+// throws ConfigError (naming seg.slice_spacing_mm) when fewer than half of the colour `stack`'s
+// slices find a segmentation slice of their number (a stack at another spacing).
+void check_seg_numbers_match(const Config& config, const std::vector<SliceFile>& stack,
+                             const std::vector<SliceFile>& seg_files);
+
 // The labels stage slice by slice: run_labels_stage and the streaming vispack-run (stream.h)
 // share it (same files, same manifest records, same report).
 // Thread-safety: up_to_date, skip and compute may be called concurrently for different slices;
