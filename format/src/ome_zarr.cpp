@@ -77,6 +77,108 @@ void check_options(const OmeZarrOptions& o) {
 
 }  // namespace
 
+namespace {
+
+using ImageRun = std::vector<const ExportImage*>;
+
+// Images of one channel are adjacent in the plan: each run shares its bricks.
+std::vector<ImageRun> channel_runs(const ExportPlan& plan) {
+  std::vector<ImageRun> runs;
+  for (const ExportImage& image : plan.images) {
+    if (runs.empty() || runs.back().front()->channel != image.channel) runs.emplace_back();
+    runs.back().push_back(&image);
+  }
+  return runs;
+}
+
+// The chunk writing of one export: batches of bricks encoded on `threads` threads, written in
+// order, each brick's mapped pages released once written (memory: a few bricks).
+class ChunkExport {
+ public:
+  ChunkExport(const Reader& reader, OutputFolder& folder, const OmeZarrOptions& options,
+              bool sharded, Progress& progress, OmeZarrStats& stats)
+      : reader_(reader),
+        folder_(folder),
+        options_(options),
+        sharded_(sharded),
+        threads_(resolve_threads(options.threads)),
+        batch_(std::size_t(std::max(4, 4 * threads_))),
+        progress_(progress),
+        stats_(stats) {
+    for (std::size_t i = 0; i < batch_; ++i) {
+      encoders_.push_back(
+          std::make_unique<ChunkEncoder>(reader, options.zstd_level, options.copy_stored_bricks));
+    }
+    results_.resize(batch_);
+  }
+
+  // Every chunk of the run's images at `level`.
+  void level(const ImageRun& run, int level) {
+    const int channel = run.front()->channel;
+    const auto order = chunk_order(reader_.brick_grid(level), sharded_ ? options_.shard_bricks : 0);
+    std::vector<std::unique_ptr<ChunkWriter>> writers;
+    std::vector<ShardWriter*> shard_writers;
+    for (const ExportImage* image : run) {
+      const std::string array = image->path + "/" + std::to_string(level);
+      const bool channel_axis = image->kind == ImageKind::kColour;
+      if (sharded_) {
+        auto w = std::make_unique<ShardWriter>(folder_, array, channel_axis, options_.shard_bricks);
+        shard_writers.push_back(w.get());
+        writers.push_back(std::move(w));
+      } else {
+        writers.push_back(std::make_unique<V2ChunkWriter>(folder_, array, channel_axis));
+      }
+    }
+    for (auto& r : results_)
+      r.resize(run.size());
+    for (std::size_t first = 0; first < order.size(); first += batch_) {
+      const std::size_t n = std::min(batch_, order.size() - first);
+      parallel_for(std::int64_t(n), threads_, [&](std::int64_t i) {
+        const auto& b = order[first + std::size_t(i)];
+        const BrickInfo& brick = reader_.brick(channel, level, b[0], b[1], b[2]);
+        for (std::size_t k = 0; k < run.size(); ++k)
+          encoders_[std::size_t(i)]->encode(brick, *run[k], results_[std::size_t(i)][k]);
+      });
+      for (std::size_t i = 0; i < n; ++i)
+        write_brick(channel, level, order[first + i], run.size(), results_[i], writers);
+      stats_.bricks += n;
+      progress_.advance(std::int64_t(n));
+    }
+    for (auto& w : writers)
+      w->finish();
+    for (const ShardWriter* w : shard_writers)
+      stats_.shards += w->shards();
+  }
+
+ private:
+  void write_brick(int channel, int level, const std::array<std::int64_t, 3>& b, std::size_t images,
+                   const std::vector<EncodedChunk>& chunks,
+                   std::vector<std::unique_ptr<ChunkWriter>>& writers) {
+    const BrickInfo& brick = reader_.brick(channel, level, b[0], b[1], b[2]);
+    for (std::size_t k = 0; k < images; ++k) {
+      const EncodedChunk& c = chunks[k];
+      writers[k]->put(b, c.data(), c.size());
+      stats_.chunks_copied += c.how == EncodedChunk::How::kCopied;
+      stats_.chunks_encoded += c.how == EncodedChunk::How::kEncoded;
+      stats_.chunks_skipped += c.how == EncodedChunk::How::kSkipped;
+    }
+    reader_.release_payload_pages(brick);  // written: the memory stays at a few bricks
+  }
+
+  const Reader& reader_;
+  OutputFolder& folder_;
+  const OmeZarrOptions& options_;
+  bool sharded_;
+  int threads_;
+  std::size_t batch_;
+  Progress& progress_;
+  OmeZarrStats& stats_;
+  std::vector<std::unique_ptr<ChunkEncoder>> encoders_;
+  std::vector<std::vector<EncodedChunk>> results_;
+};
+
+}  // namespace
+
 OmeZarrStats export_ome_zarr(const Reader& reader, const std::string& out_path,
                              const OmeZarrOptions& options) {
   const auto start = std::chrono::steady_clock::now();
@@ -85,78 +187,19 @@ OmeZarrStats export_ome_zarr(const Reader& reader, const std::string& out_path,
   OutputFolder folder(out_path, options.overwrite);
   write_metadata(folder, reader, plan, options);
 
-  const bool sharded = plan.version == NgffVersion::k05;
-  // Images of one channel are adjacent in the plan: each run shares its bricks.
-  std::vector<std::vector<const ExportImage*>> runs;
-  for (const ExportImage& image : plan.images) {
-    if (runs.empty() || runs.back().front()->channel != image.channel) runs.emplace_back();
-    runs.back().push_back(&image);
-  }
+  const std::vector<ImageRun> runs = channel_runs(plan);
   std::int64_t total = 0;
   for (std::size_t r = 0; r < runs.size(); ++r)
     for (int level : plan.levels) {
       const auto g = reader.brick_grid(level);
       total += g[0] * g[1] * g[2];
     }
-
   OmeZarrStats stats;
-  const int threads = resolve_threads(options.threads);
-  const std::size_t batch = std::size_t(std::max(4, 4 * threads));
-  std::vector<std::unique_ptr<ChunkEncoder>> encoders;
-  for (std::size_t i = 0; i < batch; ++i) {
-    encoders.push_back(
-        std::make_unique<ChunkEncoder>(reader, options.zstd_level, options.copy_stored_bricks));
-  }
   Progress progress(cat("export ", folder.final_path()), total, "bricks", options.quiet);
-  std::vector<std::vector<EncodedChunk>> results(batch);
-  for (const auto& run : runs) {
-    const int channel = run.front()->channel;
-    for (int level : plan.levels) {
-      const auto order = chunk_order(reader.brick_grid(level), sharded ? options.shard_bricks : 0);
-      std::vector<std::unique_ptr<ChunkWriter>> writers;
-      std::vector<ShardWriter*> shard_writers;
-      for (const ExportImage* image : run) {
-        const std::string array = image->path + "/" + std::to_string(level);
-        const bool channel_axis = image->kind == ImageKind::kColour;
-        if (sharded) {
-          auto w = std::make_unique<ShardWriter>(folder, array, channel_axis, options.shard_bricks);
-          shard_writers.push_back(w.get());
-          writers.push_back(std::move(w));
-        } else {
-          writers.push_back(std::make_unique<V2ChunkWriter>(folder, array, channel_axis));
-        }
-      }
-      for (auto& r : results)
-        r.resize(run.size());
-      for (std::size_t first = 0; first < order.size(); first += batch) {
-        const std::size_t n = std::min(batch, order.size() - first);
-        parallel_for(std::int64_t(n), threads, [&](std::int64_t i) {
-          const auto& b = order[first + std::size_t(i)];
-          const BrickInfo& brick = reader.brick(channel, level, b[0], b[1], b[2]);
-          for (std::size_t k = 0; k < run.size(); ++k)
-            encoders[std::size_t(i)]->encode(brick, *run[k], results[std::size_t(i)][k]);
-        });
-        for (std::size_t i = 0; i < n; ++i) {
-          const auto& b = order[first + i];
-          const BrickInfo& brick = reader.brick(channel, level, b[0], b[1], b[2]);
-          for (std::size_t k = 0; k < run.size(); ++k) {
-            const EncodedChunk& c = results[i][k];
-            writers[k]->put(b, c.data(), c.size());
-            stats.chunks_copied += c.how == EncodedChunk::How::kCopied;
-            stats.chunks_encoded += c.how == EncodedChunk::How::kEncoded;
-            stats.chunks_skipped += c.how == EncodedChunk::How::kSkipped;
-          }
-          reader.release_payload_pages(brick);  // written: the memory stays at a few bricks
-        }
-        stats.bricks += n;
-        progress.advance(std::int64_t(n));
-      }
-      for (auto& w : writers)
-        w->finish();
-      for (const ShardWriter* w : shard_writers)
-        stats.shards += w->shards();
-    }
-  }
+  ChunkExport chunks(reader, folder, options, plan.version == NgffVersion::k05, progress, stats);
+  for (const ImageRun& run : runs)
+    for (int level : plan.levels)
+      chunks.level(run, level);
   progress.finish();
   folder.commit();
   stats.files = folder.files();

@@ -42,6 +42,62 @@ void require_rgb_slice(const cv::Mat& rgb, const char* what) {
     throw InputError(cat(what, ": expected an 8-bit RGB slice, got type ", rgb.type()));
 }
 
+namespace {
+
+// Per part (labels 1..n-1 of `labels` over `m`, the mask's box), the measures the part rule reads.
+struct PartMeasures {
+  std::vector<double> inscribed;      // largest inscribed radius, px (rule.max_elongation > 0 only)
+  std::vector<cv::Vec3d> colour_sum;  // summed RGB (a colour slice only)
+  std::vector<double> median_hu;      // CT parts only the soft-tissue exception could keep
+};
+
+std::vector<double> inscribed_radii(const cv::Mat& m, const cv::Mat& labels, int n) {
+  std::vector<double> inscribed(std::size_t(n), 0.0);
+  const cv::Mat dist = inside_distance(m);
+  for (int y = 0; y < m.rows; ++y) {
+    const int* l = labels.ptr<int>(y);
+    const float* d = dist.ptr<float>(y);
+    for (int x = 0; x < m.cols; ++x)
+      if (l[x] > 0)
+        inscribed[std::size_t(l[x])] = std::max(inscribed[std::size_t(l[x])], double(d[x]));
+  }
+  return inscribed;
+}
+
+std::vector<cv::Vec3d> colour_sums(const cv::Mat& rgb_box, const cv::Mat& labels, int n) {
+  std::vector<cv::Vec3d> colour(std::size_t(n), cv::Vec3d(0, 0, 0));
+  for (int y = 0; y < labels.rows; ++y) {
+    const int* l = labels.ptr<int>(y);
+    const cv::Vec3b* p = rgb_box.ptr<cv::Vec3b>(y);
+    for (int x = 0; x < labels.cols; ++x)
+      if (l[x] > 0) colour[std::size_t(l[x])] += cv::Vec3d(p[x][0], p[x][1], p[x][2]);
+  }
+  return colour;
+}
+
+// The median HU of each part with wanted[i] set (1e9 for the others).
+std::vector<double> median_hu_of(const cv::Mat& hu_box, const cv::Mat& labels,
+                                 const std::vector<std::uint8_t>& wanted) {
+  const std::size_t n = wanted.size();
+  std::vector<double> median(n, 1e9);
+  std::vector<std::vector<float>> values(n);
+  for (int y = 0; y < labels.rows; ++y) {
+    const int* l = labels.ptr<int>(y);
+    const float* v = hu_box.ptr<float>(y);
+    for (int x = 0; x < labels.cols; ++x)
+      if (wanted[std::size_t(l[x])]) values[std::size_t(l[x])].push_back(v[x]);
+  }
+  for (std::size_t i = 1; i < n; ++i) {
+    auto& v = values[i];
+    if (v.empty()) continue;
+    std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+    median[i] = v[v.size() / 2];
+  }
+  return median;
+}
+
+}  // namespace
+
 cv::Mat body_parts(const cv::Mat& mask, const PartRule& rule, PartCounts* counts,
                    const cv::Mat& rgb, const cv::Mat& hu) {
   if (!rgb.empty()) {
@@ -59,37 +115,19 @@ cv::Mat body_parts(const cv::Mat& mask, const PartRule& rule, PartCounts* counts
   const cv::Mat m = mask(box) > 0;
   const int n = cv::connectedComponentsWithStats(m, labels, stats, centroids, 8, CV_32S);
   if (n <= 1) return out;
-  std::vector<double> inscribed(std::size_t(n), 0.0);
-  if (rule.max_elongation > 0) {
-    const cv::Mat dist = inside_distance(m);
-    for (int y = 0; y < m.rows; ++y) {
-      const int* l = labels.ptr<int>(y);
-      const float* d = dist.ptr<float>(y);
-      for (int x = 0; x < m.cols; ++x)
-        if (l[x] > 0)
-          inscribed[std::size_t(l[x])] = std::max(inscribed[std::size_t(l[x])], double(d[x]));
-    }
-  }
-  std::vector<cv::Vec3d> colour(std::size_t(rgb.empty() ? 0 : n), cv::Vec3d(0, 0, 0));
-  if (!rgb.empty()) {
-    const cv::Mat c = rgb(box);
-    for (int y = 0; y < m.rows; ++y) {
-      const int* l = labels.ptr<int>(y);
-      const cv::Vec3b* p = c.ptr<cv::Vec3b>(y);
-      for (int x = 0; x < m.cols; ++x)
-        if (l[x] > 0) colour[std::size_t(l[x])] += cv::Vec3d(p[x][0], p[x][1], p[x][2]);
-    }
-  }
+  PartMeasures pm;
+  pm.inscribed = rule.max_elongation > 0 ? inscribed_radii(m, labels, n)
+                                         : std::vector<double>(std::size_t(n), 0.0);
+  if (!rgb.empty()) pm.colour_sum = colour_sums(rgb(box), labels, n);
   // Elongation per part (the distance transform counts from the pixel centre to the nearest
   // outside centre: a disc of radius R reads about R + 0.5).
   auto elongation = [&](int i) {
-    const double r = std::max(0.5, inscribed[std::size_t(i)]);
+    const double r = std::max(0.5, pm.inscribed[std::size_t(i)]);
     return stats.at<int>(i, cv::CC_STAT_AREA) / (kPi * r * r);
   };
   // The median HU of the CT parts that only the soft-tissue exception could keep.
-  std::vector<double> median_hu(std::size_t(n), 1e9);
+  pm.median_hu.assign(std::size_t(n), 1e9);
   if (!hu.empty() && rule.max_elongation > 0) {
-    std::vector<std::vector<float>> values(static_cast<std::size_t>(n));
     std::vector<std::uint8_t> wanted(static_cast<std::size_t>(n), 0);
     bool any = false;
     for (int i = 1; i < n; ++i) {
@@ -97,21 +135,7 @@ cv::Mat body_parts(const cv::Mat& mask, const PartRule& rule, PartCounts* counts
       if (e > rule.max_elongation && e <= kMaxTissueElongation)
         wanted[std::size_t(i)] = 1, any = true;
     }
-    if (any) {
-      const cv::Mat h = hu(box);
-      for (int y = 0; y < m.rows; ++y) {
-        const int* l = labels.ptr<int>(y);
-        const float* v = h.ptr<float>(y);
-        for (int x = 0; x < m.cols; ++x)
-          if (wanted[std::size_t(l[x])]) values[std::size_t(l[x])].push_back(v[x]);
-      }
-      for (int i = 1; i < n; ++i) {
-        auto& v = values[std::size_t(i)];
-        if (v.empty()) continue;
-        std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
-        median_hu[std::size_t(i)] = v[v.size() / 2];
-      }
-    }
+    if (any) pm.median_hu = median_hu_of(hu(box), labels, wanted);
   }
   std::vector<std::uint8_t> keep(std::size_t(n), 0);
   int kept = 0;
@@ -119,9 +143,10 @@ cv::Mat body_parts(const cv::Mat& mask, const PartRule& rule, PartCounts* counts
     const double area = stats.at<int>(i, cv::CC_STAT_AREA);
     bool body = area >= rule.min_area_px;
     if (body && rule.max_elongation > 0)
-      body = elongation(i) <= rule.max_elongation || median_hu[std::size_t(i)] <= kSoftTissueMaxHu;
+      body =
+          elongation(i) <= rule.max_elongation || pm.median_hu[std::size_t(i)] <= kSoftTissueMaxHu;
     if (body && !rgb.empty()) {
-      const cv::Vec3d mean = colour[std::size_t(i)] / area;
+      const cv::Vec3d mean = pm.colour_sum[std::size_t(i)] / area;
       body = mean[1] <= mean[0] + kTissueColourSlack && mean[2] <= mean[0] + kTissueColourSlack;
     }
     keep[std::size_t(i)] = body ? 255 : 0;

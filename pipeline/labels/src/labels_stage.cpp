@@ -22,7 +22,7 @@ using nlohmann::json;
 void check_seg_numbers_match(const Config& config, const std::vector<SliceFile>& stack,
                              const std::vector<SliceFile>& seg_files) {
   // Matched by file number: a segmentation of fewer slices than half the colour stack's is a
-  // stack at another spacing, never to be paired by number (issue 31).
+  // stack at another spacing, never to be paired by number (slice_z.h).
   std::set<std::pair<int, int>> numbers;
   for (const auto& f : seg_files)
     numbers.insert({f.number, f.letter});
