@@ -646,3 +646,30 @@ TEST(RegisterStage, ShardDrawsTheOverlayFromTheRecordedPicture) {
   std::filesystem::remove(overlay);
   EXPECT_THROW(vp::run_register_stage(config, options), vispack::InputError);
 }
+
+// A block jump smaller than register.jump_px (3..6 px, with its 2..4° rotation): the two anchors
+// and the pair between them agree on the step, so the walk prior is cut there instead of
+// spreading the step over the stack (docs/ARCHITECTURE.md, "Registration"; BENCHMARKS
+// "Registration when the drift is not the solver's prior"). Without that cut this case scored
+// 2.1 px RMS over the body and missed the jump.
+TEST(RegisterStage, SmallBlockJumpUnderTheThresholdIsNotSmoothedAway) {
+  TempDir dir("vispack-small-jump");
+  vph::PhantomOptions options;
+  options.preset = "small";
+  options.seed = 3;
+  options.jump_px_min = 3;
+  options.jump_px_max = 6;
+  options.defects = false;
+  options.quiet = true;
+  vph::make_phantom(dir.path(), options);
+  const vispack::pipeline::Config config = vispack::pipeline::load_config(dir / "config.json");
+  vispack::pipeline::run_register_stage(config, vispack::test::quiet_stage_options());
+  const vph::Score score = vph::score_work(dir / "truth", config.work_dir);
+  std::printf("small block jump: drift over the body %.3f px RMS, max %.3f px; jumps %d of %d\n",
+              score.drift.over_body_rms_px, score.drift.over_body_max_px, score.jumps.found,
+              score.jumps.true_jumps);
+  EXPECT_LE(score.drift.over_body_rms_px, 0.3);
+  EXPECT_LE(score.drift.over_body_max_px, 0.5);
+  EXPECT_EQ(score.jumps.found, 1);
+  EXPECT_EQ(score.jumps.false_jumps, 0);
+}
