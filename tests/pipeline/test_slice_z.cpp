@@ -11,6 +11,8 @@
 #include <filesystem>
 #include <functional>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include <nlohmann/json.hpp>
 
@@ -363,4 +365,42 @@ TEST(SliceZ, HeadCtCaseWithColourThreeTimesFinerThanTheCt) {
 }
 TEST(SliceZ, HeadCtCaseWithColourFiveTimesFinerThanTheCt) {
   head_ct_case(5);
+}
+
+// Colour slices lie along z by their position in the stack: a gap in the file numbers (or, with
+// {n}{a}, a missing letter) moves every later slice against the CT, and is said once, naming the
+// first gap and the count.
+TEST(SliceZ, AGapInTheColourNumbersIsReported) {
+  const vp::Config c = z_config(1.0, 1.0, 0.0);
+  auto files = [](std::vector<std::pair<int, int>> numbers) {
+    std::vector<vp::SliceFile> out;
+    for (const auto& [n, letter] : numbers)
+      out.push_back({n,
+                     "/rgb/avf" + std::to_string(n) +
+                         (letter >= 0 ? std::string(1, char('a' + letter)) : "") + ".raw",
+                     letter});
+    return out;
+  };
+  EXPECT_EQ(vp::colour_gap_warning(c, files({{1, -1}, {2, -1}, {3, -1}})), "");
+  EXPECT_EQ(vp::colour_gap_warning(c, files({{10, -1}, {20, -1}, {30, -1}})), "");  // step 10
+  const std::string number = vp::colour_gap_warning(c, files({{1, -1}, {2, -1}, {4, -1}}));
+  EXPECT_NE(number.find("colour slice 3 is missing (avf2.raw is followed by avf4.raw)"),
+            std::string::npos)
+      << number;
+  const std::string letter = vp::colour_gap_warning(c, files({{1001, 0},
+                                                              {1001, 1},
+                                                              {1001, 2},
+                                                              {1002, 0},
+                                                              {1002, 2},
+                                                              {1003, 0},
+                                                              {1003, 1},
+                                                              {1004, 0}}));
+  EXPECT_NE(letter.find("colour slice 1002b is missing (avf1002a.raw is followed by avf1002c.raw) "
+                        "and 1 more gaps"),
+            std::string::npos)
+      << letter;
+  EXPECT_EQ(vp::colour_gap_warning(c, files({{1001, 0}, {1001, 1}, {1001, 2}, {1002, 0}})), "");
+  vp::Config no_ct = c;
+  no_ct.ct.reset();
+  EXPECT_EQ(vp::colour_gap_warning(no_ct, files({{1, -1}, {3, -1}})), "");
 }

@@ -1,8 +1,10 @@
 #include "vispack/pipeline/core/work_layout.h"
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <set>
+#include <string>
 
 #include "vispack/common/error.h"
 #include "vispack/pipeline/core/slice_z.h"
@@ -78,6 +80,50 @@ std::vector<SliceFile> stack_slices(const Config& config) {
   // of the colour stack).
   z_extent_warnings(config, int(files.size()));
   return files;
+}
+
+std::string colour_gap_warning(const Config& config, const std::vector<SliceFile>& colour) {
+  if (!config.ct && !(config.seg && config.seg->slice_spacing_mm)) return "";
+  // The step between numbers (the smallest), and within a number the letters a, b, c, ...
+  int step = 0;
+  for (std::size_t i = 1; i < colour.size(); ++i) {
+    const int d = colour[i].number - colour[i - 1].number;
+    if (d > 0 && (step == 0 || d < step)) step = d;
+  }
+  // Letters per number: the most any number has (a number with fewer, other than the last one of
+  // the stack, lacks some).
+  int letters = 0;
+  for (std::size_t i = 0, j = 0; i < colour.size(); i = j) {
+    for (j = i; j < colour.size() && colour[j].number == colour[i].number;)
+      ++j;
+    letters = std::max(letters, int(j - i));
+  }
+  int gaps = 0;
+  std::string first;
+  auto gap = [&](const std::string& what, std::size_t i) {
+    if (gaps++ == 0)
+      first = cat(what, " (", fs::path(colour[i - 1].path).filename().string(), " is followed by ",
+                  fs::path(colour[i].path).filename().string(), ")");
+  };
+  for (std::size_t i = 1; i < colour.size(); ++i) {
+    const SliceFile &a = colour[i - 1], &b = colour[i];
+    if (step > 0 && b.number - a.number > step) {
+      gap(cat("colour slice ", a.number + step, " is missing"), i);
+    } else if (b.number == a.number && a.letter >= 0 && b.letter != a.letter + 1) {
+      gap(cat("colour slice ", a.number, char('a' + a.letter + 1), " is missing"), i);
+    } else if (b.number != a.number && b.letter > 0) {
+      gap(cat("colour slice ", b.number, "a is missing"), i);
+    } else if (b.number != a.number && a.letter >= 0 && a.letter + 1 < letters) {
+      gap(cat("colour slice ", a.number, char('a' + a.letter + 1), " is missing"), i);
+    }
+  }
+  if (gaps == 0) return "";
+  return cat(config.rgb.dir, ": ", first, gaps > 1 ? cat(" and ", gaps - 1, " more gaps") : "",
+             ": colour slices are placed along z by their position in the stack, so every slice "
+             "after a gap lies one colour spacing (",
+             config.spacing_mm[2],
+             " mm) lower against the CT than its number says; supply the "
+             "missing slices (a black or duplicated file keeps the positions)");
 }
 
 std::vector<std::string> z_extent_warnings(const Config& config, int colour_count) {

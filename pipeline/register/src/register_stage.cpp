@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <utility>
 
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
@@ -539,7 +540,9 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
   const int n = int(files.size());
   // CT or segmentation extents that differ from the colour stack's (slice_z.h): reported with
   // the solve's warnings.
-  const std::vector<std::string> z_warnings = z_extent_warnings(config, n);
+  std::vector<std::string> z_warnings = z_extent_warnings(config, n);
+  if (std::string gap = colour_gap_warning(config, files); !gap.empty())
+    z_warnings.push_back(std::move(gap));
   for (const auto& w : z_warnings)
     warn(options, w);
   // A planar raw file read as interleaved (or the reverse) registers "fine" and packs a

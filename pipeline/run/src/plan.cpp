@@ -2,6 +2,7 @@
 #include "vispack/pipeline/run/plan.h"
 
 #include <filesystem>
+#include <utility>
 
 #include "vispack/common/error.h"
 #include "vispack/pipeline/core/layout_check.h"
@@ -54,6 +55,8 @@ Plan plan_run(const Config& config) {
   }
   plan.pack_slab_slices = config.pack.brick_edge;
   plan.warnings = z_extent_warnings(config, plan.slices);
+  if (std::string gap = colour_gap_warning(config, stack); !gap.empty())
+    plan.warnings.push_back(std::move(gap));
 
   plan.inputs.push_back(open_ends("rgb", config.rgb, stack, true));
   if (!stack.empty()) {

@@ -51,6 +51,13 @@ void check_no_missing_slice(const SliceSource& source, const std::vector<SliceFi
 // less than half of the colour stack.
 std::vector<std::string> z_extent_warnings(const Config& config, int colour_count);
 
+// A gap in the colour stack's file numbers (a number missing; with {n}{a}, a letter missing before
+// the last one of its number) where a CT or a segmentation at its own spacing is configured:
+// colour slices are placed along z by their position in the stack (slice_z.h), so every slice
+// after the gap lies one colour spacing lower against the CT than its number says. The warning
+// names the first gap and how many there are; "" when there is none (or nothing to pair with).
+std::string colour_gap_warning(const Config& config, const std::vector<SliceFile>& colour);
+
 // The register stage's transforms for a stack of `slice_count` slices: reads
 // <work>/register/transforms.json. Throws InputError naming the file when it is missing ("run
 // vispack-register first") or covers another number of slices ("rerun vispack-register").
