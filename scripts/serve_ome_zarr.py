@@ -97,8 +97,9 @@ def state(export, base_url):
     """The neuroglancer state for the export at base_url (the served URL of OUT.zarr).
 
     Global dimensions x, y, z (x across the screen in the xy view) in metres, the view on the
-    volume's centre (NGFF puts voxel i's centre at translation + i * scale, and so does
-    neuroglancer: the centre of level 0 is voxel (n - 1) / 2), cross-sections zoomed to fit."""
+    middle voxel of level 0 (NGFF puts voxel i's centre at translation + i * scale, and so does
+    neuroglancer: position i shows voxel i alone, i + 0.5 lies between two), cross-sections
+    zoomed to fit."""
     root_meta = ".zattrs" if os.path.exists(os.path.join(export, ".zattrs")) else "zarr.json"
     root = read_json(os.path.join(export, root_meta))
     images = root.get("attributes", root)["vispack"]["images"]
@@ -112,7 +113,7 @@ def state(export, base_url):
             scale_zyx = dataset["coordinateTransformations"][0]["scale"][-3:]
             shape_zyx = array_shape(os.path.join(group, dataset["path"]))[-3:]
             space = {n: [scale_zyx[i] * 1e-3, "m"] for n, i in (("x", 2), ("y", 1), ("z", 0))}
-            position = [(shape_zyx[i] - 1) / 2 for i in (2, 1, 0)]
+            position = [shape_zyx[i] // 2 for i in (2, 1, 0)]
             extent_mm = max(n * s for n, s in zip(shape_zyx, scale_zyx))
             finest_mm = min(scale_zyx)
         if im["kind"] == "labels":

@@ -26,7 +26,7 @@ const browser = await puppeteer.launch({
   executablePath: chromium,
   headless: true,
   args: ["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-         "--disable-gpu-sandbox", "--window-size=800,600"],
+         "--disable-gpu-sandbox", "--disable-dev-shm-usage", "--window-size=800,600"],
 });
 let failed = false;
 try {
