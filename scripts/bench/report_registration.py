@@ -137,8 +137,8 @@ class RegistrationSection:
         e = self.section("ECC: OpenCV's iteration against the fused one", "ecc.json")
         if not e:
             return
-        self.w("Registration runs its ECC refinements through `register/ecc` (one fused pass per "
-               "iteration: warp, gradients, Hessian and the update together) instead of OpenCV's "
+        self.w("Registration runs its ECC refinements through `register/ecc` (one fused pass over "
+               "the image per iteration) instead of OpenCV's "
                "`cv::findTransformECC` (which warps the input, both gradients and a mask every "
                "iteration, then makes a dozen whole-image passes). "
                f"`{e['command']}` (`tests/bench/ecc_bench.cpp`, run by `scripts/bench.sh`): both on "
