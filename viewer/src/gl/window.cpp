@@ -425,7 +425,9 @@ int run_window(const ViewOptions& options) {
   glfwSetKeyCallback(window, on_key);
 
   const int levels = source->level_count();
-  render::BrickTree tree(*source);
+  // The coarsest level's ranges only; every level's are built across the frames that follow
+  // (docs/BENCHMARKS.md, 'Viewer on long files').
+  render::BrickTree tree(*source, render::TreeBuild::kCoarseFirst);
   BrickCache cache(*source, options.max_gpu_mb << 20, options.threads);
   const render::PlanOptions base_plan = plan_options(options, levels);
   SliceRenderer renderer;
@@ -476,7 +478,7 @@ int run_window(const ViewOptions& options) {
     const FrameResult frame = draw_frame(state, g0, tree, cache, base_plan, renderer, area, fh);
     frame_ms = 0.9 * frame_ms + 0.1 * frame.render_ms;
     if (next_command < script.size() && !frame.moving && frame.plan.missing.empty() &&
-        !cache.busy()) {
+        !cache.busy() && tree.complete()) {
       const Command& c = script[next_command];
       if (c.verb == "screenshot") render::write_png(c.arg, read_window(area, fh));
       ++next_command;
@@ -513,6 +515,8 @@ int run_window(const ViewOptions& options) {
     ImGui_ImplOpenGL3_RenderDrawData(ImGui::GetDrawData());
 #endif
     glfwSwapBuffers(window);
+    // The finer levels' ranges, a slice of time per frame (more while the view rests).
+    if (!tree.complete()) tree.build_for(frame.moving ? 0.03 : 0.25);
   }
   return 0;
 }
