@@ -226,8 +226,15 @@ TEST(BrickTree, CoarseFirstReadsTheCoarsestLevelThenBuildsTheEagerTree) {
     for (const BrickKey& k : first.draw)
       EXPECT_EQ(k.level, top);
     int steps = 0;
-    while (!lazy.build_step(7))
+    double progress = lazy.build_progress();
+    EXPECT_EQ(progress, 0.0);
+    while (!lazy.build_step(7)) {
       ++steps;
+      EXPECT_GT(lazy.build_progress(), progress);
+      progress = lazy.build_progress();
+      EXPECT_LT(progress, 1.0);
+    }
+    EXPECT_EQ(lazy.build_progress(), 1.0);
     const auto& g0 = eager.grid(0);
     EXPECT_GT(steps, g0[0] * g0[1] * g0[2] / 7 - 1);  // small steps, as asked
     EXPECT_EQ(lazy.stats_reads(0), g0[0] * g0[1] * g0[2]);

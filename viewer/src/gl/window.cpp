@@ -279,8 +279,10 @@ void panel_render_params(State& state, Panel& panel, const render::LevelGeometry
 }
 
 // Frame time, the bricks drawn per level, skipped, culled and loading, GPU memory, lost slices.
-void panel_status(const FrameResult& frame, double frame_ms, int levels, const BrickCache& cache,
-                  std::int64_t max_gpu_mb, const std::vector<std::int64_t>& lost) {
+void panel_status(const FrameResult& frame, double frame_ms, const render::BrickTree& tree,
+                  const BrickCache& cache, std::int64_t max_gpu_mb,
+                  const std::vector<std::int64_t>& lost) {
+  const int levels = tree.levels();
   int per_level[64] = {0};
   for (const render::BrickKey& k : frame.plan.draw)
     per_level[std::min(k.level, 63)]++;
@@ -292,6 +294,8 @@ void panel_status(const FrameResult& frame, double frame_ms, int levels, const B
   ImGui::Text("skipped (empty) %lld, culled %lld, loading %zu", (long long)frame.plan.skipped,
               (long long)frame.plan.culled, frame.plan.missing.size());
   ImGui::Text("GPU %.0f / %lld MB", cs.resident_bytes / 1048576.0, (long long)max_gpu_mb);
+  if (!tree.complete())  // the coarsest level is drawn until then (brick_tree.h, TreeBuild)
+    ImGui::Text("brick tree of the finer levels: %.0f %%", 100.0 * tree.build_progress());
   if (!lost.empty()) {
     std::string list;
     for (std::size_t i = 0; i < lost.size() && i < 12; ++i)
@@ -499,7 +503,7 @@ int run_window(const ViewOptions& options) {
       panel_rect = {int(pos.x), int(pos.y), int(std::ceil(size.x)), int(std::ceil(size.y))};
     }
     panel_render_params(state, panel, g0);
-    panel_status(frame, frame_ms, levels, cache, options.max_gpu_mb, lost);
+    panel_status(frame, frame_ms, tree, cache, options.max_gpu_mb, lost);
     if (state.params.mode == render::Mode::kLabels) {
       const char* shadings[] = {"flat", "modulated by intensity", "ramp per segment"};
       int sh = int(state.params.label_shading);

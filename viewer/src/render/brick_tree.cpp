@@ -67,6 +67,7 @@ BrickTree::BrickTree(const VolumeSource& source, TreeBuild build)
   for (int l = 0; l < levels; ++l) {
     const auto& g = grid_[std::size_t(l)];
     own_[std::size_t(l)].resize(std::size_t(g[0] * g[1] * g[2]));
+    units_total_ += 2 * g[0] * g[1] * g[2];  // own, then dilated
   }
   if (build == TreeBuild::kCoarseFirst && levels > 1) {
     // The coarsest level ranged by its own bricks' stats: what a frame of that level samples.
@@ -151,6 +152,7 @@ bool BrickTree::build_step(std::int64_t max_units) {
       if (out.empty()) out.resize(std::size_t(count));
       out[std::size_t(cursor_)] = dilated(own_[std::size_t(l)], k);
     }
+    ++units_done_;
     if (++cursor_ < count) continue;
     cursor_ = 0;
     if (++build_level_ < levels) continue;

@@ -19,6 +19,7 @@
 // a valid visibility order for a grid of boxes, hence for the octree traversal.
 #pragma once
 
+#include <algorithm>
 #include <array>
 #include <cstdint>
 #include <functional>
@@ -126,6 +127,10 @@ class BrickTree {
   // Advances the build for about `seconds` of wall time (at least one unit); returns complete().
   bool build_for(double seconds);
   void build_all();
+  // Share of the build done, in [0, 1] (1 once complete()).
+  double build_progress() const {
+    return complete_ ? 1.0 : double(units_done_) / double(std::max<std::int64_t>(units_total_, 1));
+  }
   // Instrumentation: brick_stats calls made so far for bricks of level `level` (all channels).
   std::int64_t stats_reads(int level) const { return stats_reads_.at(std::size_t(level)); }
 
@@ -149,7 +154,7 @@ class BrickTree {
   // level by level from 0, brick by brick (`cursor_`, the linear brick index).
   std::vector<std::vector<Range>> own_, dilated_;
   int phase_ = 0, build_level_ = 0;
-  std::int64_t cursor_ = 0;
+  std::int64_t cursor_ = 0, units_done_ = 0, units_total_ = 0;
 };
 
 struct PlanOptions {
