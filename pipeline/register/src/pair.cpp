@@ -61,6 +61,14 @@ bool refine_fine(const RegisterFrame& from, const RegisterFrame& to, const Regis
   auto too_far = [&](const cv::Matx23d& full) {
     return travel(rigid_from_matrix(full, centre)) >= reach;
   };
+  // A first pass at the middle level (a quarter of the pixels): the fine pass then starts
+  // where the middle one ended, a few fine iterations from its own optimum.
+  if (!from.middle.empty() && from.middle.size() == to.middle.size()) {
+    cv::Matx23d mm = m;
+    if (ecc_level(from.middle, to.middle, from.middle_scale, mm,
+                  std::max(1, options.ecc_iterations), kFineEps, too_far))
+      m = mm;
+  }
   const std::optional<double> rho =
       ecc_level(from.fine, to.fine, from.fine_scale, m, std::max(1, options.ecc_iterations),
                 kFineEps, too_far);
