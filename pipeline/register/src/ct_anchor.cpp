@@ -267,10 +267,13 @@ std::optional<cv::Matx23d> capture(const cv::Mat& tmpl, const cv::Mat& input) {
   cv::GaussianBlur(input, in, cv::Size(0, 0), 1.5);
   cv::Matx23d refined = m;
   const double reach = 0.15 * std::max(tmpl.cols, tmpl.rows);
-  auto too_far = [&](const cv::Matx23d& w) {
-    return !(std::hypot(w(0, 2) - m(0, 2), w(1, 2) - m(1, 2)) < reach);
+  auto moved = [&](const cv::Matx23d& w) {
+    return std::hypot(w(0, 2) - m(0, 2), w(1, 2) - m(1, 2));
   };
-  if (ecc(t, in, refined, 40, 1e-4, 1, too_far) > 0.0 && !too_far(refined)) m = refined;
+  if (ecc(t, in, refined, 40, 1e-4, 1,
+          [&](const cv::Matx23d& w) { return !(moved(w) < kEccRunawayFactor * reach); }) > 0.0 &&
+      moved(refined) < reach)
+    m = refined;
   return m;
 }
 
@@ -354,13 +357,14 @@ std::optional<cv::Matx23d> refine_multimodal(const cv::Mat& tmpl, const cv::Mat&
     const cv::Mat predicted = predict_ct(col, coef);
     const cv::Matx23d before = ml;
     // A refinement that runs far from its start has diverged.
-    auto too_far = [&, reach = 0.1 * std::max(t.cols, t.rows)](const cv::Matx23d& w) {
-      return std::hypot(w(0, 2) - before(0, 2), w(1, 2) - before(1, 2)) > reach;
+    auto too_far = [&, reach = 0.1 * std::max(t.cols, t.rows)](const cv::Matx23d& w, double k) {
+      return std::hypot(w(0, 2) - before(0, 2), w(1, 2) - before(1, 2)) > k * reach;
     };
     // A wide blur widens the basin at half resolution; the final pass blurs less, as the
     // polynomial is applied before the blur (edges mixing two tissues map imperfectly).
-    rho = ecc(t, predicted, ml, iterations, 1e-5, level < 1.0 ? 5 : 3, too_far);
-    if (rho < 0.0 || too_far(ml)) return std::nullopt;
+    rho = ecc(t, predicted, ml, iterations, 1e-5, level < 1.0 ? 5 : 3,
+              [&](const cv::Matx23d& w) { return too_far(w, kEccRunawayFactor); });
+    if (rho < 0.0 || too_far(ml, 1.0)) return std::nullopt;
     start = to_full(ml, lx, ly);
   }
   *rho_out = rho;
@@ -376,14 +380,14 @@ std::optional<cv::Matx23d> refine_multimodal(const cv::Mat& tmpl, const cv::Mat&
 cv::Matx23d refine_outline(const cv::Mat& soft_ct, const cv::Mat& soft_colour, const cv::Matx23d& m,
                            int iterations) {
   cv::Matx23d outline = m;
-  auto within = [&](const cv::Matx23d& w) {
-    return std::hypot(w(0, 2) - m(0, 2), w(1, 2) - m(1, 2)) < kOutlineReachPx &&
+  auto within = [&](const cv::Matx23d& w, double k) {
+    return std::hypot(w(0, 2) - m(0, 2), w(1, 2) - m(1, 2)) < k * kOutlineReachPx &&
            std::abs(std::atan2(w(1, 0), w(0, 0)) - std::atan2(m(1, 0), m(0, 0))) <
-               kOutlineTurnDeg * kPi / 180.0;
+               k * kOutlineTurnDeg * kPi / 180.0;
   };
   if (ecc(soft_ct, soft_colour, outline, 2 * iterations, 1e-7, 3,
-          [&](const cv::Matx23d& w) { return !within(w); }) > 0.0 &&
-      within(outline))
+          [&](const cv::Matx23d& w) { return !within(w, kEccRunawayFactor); }) > 0.0 &&
+      within(outline, 1.0))
     return outline;
   return m;
 }

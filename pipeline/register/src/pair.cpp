@@ -55,11 +55,11 @@ bool refine_fine(const RegisterFrame& from, const RegisterFrame& to, const Regis
         {r.rotation_deg - start.rotation_deg, r.dx_px - start.dx_px, r.dy_px - start.dy_px},
         from.full_size);
   };
-  // An iterate beyond the reach ends the refinement: it would be rejected below unless it came
-  // back, and on slices whose anatomy differs the iteration creeps on instead (docs/BENCHMARKS.md
-  // "Register stage: CPU per slice").
+  // An iterate twice beyond the reach ends the refinement: on slices whose anatomy differs the
+  // iteration creeps on for tens of pixels, to be rejected below (docs/BENCHMARKS.md "Register
+  // stage: CPU per slice").
   auto too_far = [&](const cv::Matx23d& full) {
-    return travel(rigid_from_matrix(full, centre)) >= reach;
+    return travel(rigid_from_matrix(full, centre)) >= kEccRunawayFactor * reach;
   };
   // A first pass at the middle level (a quarter of the pixels): the fine pass then starts
   // where the middle one ended, a few fine iterations from its own optimum.
@@ -72,7 +72,7 @@ bool refine_fine(const RegisterFrame& from, const RegisterFrame& to, const Regis
   const std::optional<double> rho =
       ecc_level(from.fine, to.fine, from.fine_scale, m, std::max(1, options.ecc_iterations),
                 kFineEps, too_far);
-  if (!rho) return false;  // ECC did not converge, or ran beyond the reach
+  if (!rho) return false;  // ECC did not converge, or ran away
   const Rigid refined = rigid_from_matrix(m, centre);
   if (travel(refined) < reach) {
     est.relative = refined;

@@ -34,6 +34,12 @@ struct EccOptions {
   std::function<bool(const cv::Matx23d&)> diverged;
 };
 
+// How much farther than the caller's own rejection limit an iterate must lie for `diverged` to end
+// the iteration: a path may overshoot its limit and come back (on the `anatomy` 5:1 case, ending
+// at the limit itself moved a mask slice's IoU by 0.001); the runaway paths this is for leave by
+// tens of times.
+inline constexpr double kEccRunawayFactor = 2.0;
+
 // Refines `warp` (a rotation + translation, template → input pixels; its rotation part must be
 // a rotation) so that the warped input best correlates with `tmpl`, and returns the correlation
 // coefficient measured before the last update, in [-1, 1]. Returns nullopt where OpenCV would
