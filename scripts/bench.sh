@@ -53,7 +53,7 @@ if [[ $do_build == 1 ]]; then
 fi
 bin=$build/bin
 for exe in vispack-phantom vispack-run vispack-register vispack-mask vispack-labels vispack-pack vispack-vdb \
-  vispack-extract register_bench mask_bench; do
+  vispack-extract register_bench mask_bench ecc_bench; do
   [[ -x $bin/$exe ]] || fail "$bin/$exe was not built"
 done
 
@@ -118,6 +118,11 @@ if [[ $quick == 0 ]]; then
     2>"$res/drift_models.log" || { cat "$res/drift_models.log"; fail "drift-model benchmark failed"; }
 fi
 
+stamp "ECC: OpenCV's findTransformECC against the fused iteration, same images, interleaved"
+if [[ $quick == 1 ]]; then ecc_reps=1; else ecc_reps=9; fi
+"$bin/ecc_bench" --reps $ecc_reps --json "$res/ecc.json" >"$res/ecc.log" 2>&1 ||
+  { cat "$res/ecc.log"; fail "ecc_bench failed"; }
+
 stamp "Mask: CT mask against the colour-threshold baseline"
 "$bin/mask_bench" --slices $mask_slices --reps $reps --json "$res/mask.json" >"$res/mask.log" 2>&1 ||
   { cat "$res/mask.log"; fail "mask_bench failed"; }
@@ -164,6 +169,13 @@ fi
 # Process start-up, measured apart (vispack-run --help: loads every library, does no work), so
 # that the scaling fit can leave it out.
 "$py" "$root/scripts/bench/startup.py" "$res/startup.json" 5 || fail "start-up timing failed"
+if [[ $quick == 0 ]]; then
+  # Every executable's start-up apart (`EXE --help`: libraries, relocations, CPU), for the
+  # section "Process start-up per executable".
+  "$py" "$root/scripts/bench/startup.py" --per-exe "$res/startup_per_exe.json" 5 "$bin" \
+    >"$res/startup_per_exe.md" 2>"$res/startup_per_exe.log" ||
+    { cat "$res/startup_per_exe.log"; fail "per-executable start-up timing failed"; }
+fi
 : >"$res/scaling.tsv"
 for item in $scale_list; do
   IFS=: read -r name preset slices <<<"$item"

@@ -14,9 +14,10 @@ case "${1:-}" in
   *) echo "check-format: unknown option $1" >&2; exit 2 ;;
 esac
 command -v clang-format >/dev/null || { echo "check-format: clang-format not found (scripts/install-deps.sh installs it)" >&2; exit 1; }
-# The project's own sources: every folder but build outputs and fetched data.
-mapfile -t files < <(find common format pipeline phantom viewer tests \
-  \( -name '*.cpp' -o -name '*.h' \) -type f | sort)
+# The project's own sources: every folder but build outputs and fetched data (npm packages in
+# tests/js/node_modules carry C++ of their own).
+mapfile -t files < <(find common format pipeline phantom viewer tests -name node_modules -prune -o \
+  \( -name '*.cpp' -o -name '*.h' \) -type f -print | sort)
 if [[ $fix == 1 ]]; then
   clang-format -i "${files[@]}"
   echo "check-format: formatted ${#files[@]} files"

@@ -19,6 +19,9 @@ packages=(
   # readers of the OME-Zarr export vispack did not write (tests/python/test_ome_zarr.py):
   # zarr-python for NGFF 0.4; node + npm for zarrita (NGFF 0.5, scripts/fetch-js-deps.sh)
   python3-zarr nodejs
+  # the export in a browser (tests/python/test_ome_zarr_browser.py): headless chromium with its
+  # software WebGL (SwiftShader), driven by puppeteer-core (npm); screenshots read with Pillow
+  chromium python3-pil
   # sample data fetch
   dpkg-dev xz-utils
   # the cluster test (tests/cluster/slurm_test.sh): a one-node SLURM, its authentication, and

@@ -138,8 +138,8 @@ class Report(StagesSection, RegistrationSection, PackSection, ViewerSection, Sca
     def write(self):
         kept = self.kept_sections()
         self.header()
-        for name in ["stages", "registration", "drift_models", "mask", "pack", "store_size", "viewer", "scaling", "real_size",
-                     "stage_memory", "format_details", "profiles"]:
+        for name in ["stages", "registration", "ecc", "drift_models", "mask", "pack", "store_size", "viewer", "scaling",
+                     "startup", "real_size", "stage_memory", "format_details", "profiles"]:
             getattr(self, name)()
             for text in kept.pop(name, []):
                 self.w(text)

@@ -137,6 +137,32 @@ class ScaleSection:
         ax.legend(fontsize=8)
         self.save(fig, "real_size_memory.png", "peak memory against the slice count at 2048x1216")
 
+    def startup(self):
+        """Every executable's start-up (scripts/bench/startup.py --per-exe, run by scripts/bench.sh)."""
+        s = self.section("Process start-up per executable", "startup_per_exe.json",
+                         "Not measured (a `--quick` run skips it).")
+        if not s:
+            return
+        rows = [(r["exe"], r["versions"][0]) for r in s["rows"]]
+        self.w(f"`scripts/bench/startup.py --per-exe OUT {s['reps']} BIN` (run by `scripts/bench.sh`): "
+               f"every `vispack-*` executable run as `EXE --help` (loads its libraries, does no work), "
+               f"median of {s['reps']}; CPU = user + system of the child (the load-independent measure; "
+               "the wall time mostly waits for a core on a loaded machine); libraries = `ldd`'s lines; "
+               "relocations = symbol + relative relocations from `LD_DEBUG=statistics`. Load average "
+               f"when it started: {', '.join(fmt(x) for x in s['load_average'])} (1, 5, 15 min).\n")
+        self.w(table(["executable", "links OpenImageIO", "libraries", "relocations", "CPU ms", "wall ms"],
+                     [[name, "yes" if v["openimageio"] else "no", v["libraries"], f"{v['relocations']:,}",
+                       fmt(v["cpu_ms"]), fmt(v["wall_ms"])] for name, v in rows]))
+        oiio = [v for _, v in rows if v["openimageio"]]
+        other = [(n, v) for n, v in rows if not v["openimageio"]]
+        if oiio and other:
+            self.w(f"The {len(oiio)} executables that link OpenImageIO (every one that reads or writes "
+                   "an image, through `vispack_image_io` / `slice_io`) load "
+                   f"{min(v['libraries'] for v in oiio)}–{max(v['libraries'] for v in oiio)} libraries and "
+                   f"spend a median {fmt(median([v['cpu_ms'] for v in oiio]))} CPU ms starting; "
+                   + "; ".join(f"{n} (no OpenImageIO) {v['libraries']} libraries, {fmt(v['cpu_ms'])} ms"
+                               for n, v in other) + ".\n")
+
     def scaling(self):
         path = os.path.join(self.res, "scaling.tsv")
         self.w("## Cost as the work grows: whole pipeline\n")

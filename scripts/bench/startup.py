@@ -8,8 +8,8 @@ TBB, static initialisation).
   startup.py --per-exe OUT_JSON REPS BIN_DIR [BIN_DIR_B]
       Every vispack-* executable in BIN_DIR (and the same names in BIN_DIR_B, run interleaved
       A B A B, for a before/after): median CPU (user + sys) and wall ms of `EXE --help`, the
-      libraries `ldd` lists, and the loader's relocation count (LD_DEBUG=statistics). Prints a
-      Markdown table."""
+      libraries `ldd` lists (and whether OpenImageIO is among them), the loader's relocation
+      count (LD_DEBUG=statistics) and the load average at the start. Prints a Markdown table."""
 import os
 import re
 import subprocess
@@ -19,8 +19,9 @@ from common import median, timed2, write_json
 
 
 def libraries(exe):
+    """The shared libraries `ldd` lists for exe, one name a line."""
     out = subprocess.run(["ldd", exe], capture_output=True, text=True, check=True).stdout
-    return len([line for line in out.splitlines() if line.strip()])
+    return [line.split()[0] for line in out.splitlines() if line.strip()]
 
 
 def relocations(exe):
@@ -36,6 +37,7 @@ def relocations(exe):
 
 
 def per_exe(out, reps, dirs):
+    load_average = list(os.getloadavg())
     names = sorted(n for n in os.listdir(dirs[0]) if n.startswith("vispack-"))
     rows = []
     for name in names:
@@ -46,12 +48,15 @@ def per_exe(out, reps, dirs):
                 samples[i].append(timed2([exe, "--help"], stdout=subprocess.DEVNULL))
         row = {"exe": name, "versions": []}
         for exe, s in zip(exes, samples):
-            row["versions"].append({"path": exe, "libraries": libraries(exe),
+            libs = libraries(exe)
+            row["versions"].append({"path": exe, "libraries": len(libs),
+                                    "openimageio": any("libOpenImageIO" in x for x in libs),
                                     "relocations": relocations(exe),
                                     "cpu_ms": 1e3 * median([c for _, c in s]),
                                     "wall_ms": 1e3 * median([t for t, _ in s])})
         rows.append(row)
-    write_json(out, {"command": "EXE --help", "reps": reps, "dirs": dirs, "rows": rows})
+    write_json(out, {"command": "EXE --help", "reps": reps, "dirs": dirs, "rows": rows,
+                     "load_average": load_average})
     cols = ["libraries", "relocations", "cpu_ms", "wall_ms"]
     head = ["executable"] + [f"{c} {chr(65 + i)}" for c in cols for i in range(len(dirs))]
     print("| " + " | ".join(head) + " |")

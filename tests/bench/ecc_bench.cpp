@@ -4,9 +4,11 @@
 // slices: the pair's fine level (ecc_scale 0.5: 1024×608, frames pre-blurred, blur 1) and the CT
 // anchor's working grid (0.33 / 0.94 mm: 719×427, blur 5 and 3). The images: a smooth textured
 // body warped by a known rotation + translation (bicubic); the error of each result is the largest
-// corner displacement from that truth, so both are compared at their error. Prints a table
-// (docs/BENCHMARKS.md "ECC").
-//   build/bin/ecc_bench [--reps R]
+// corner displacement from that truth, so both are compared at their error. Times: wall (steady
+// clock) and CPU (the process's user + system CPU, one thread, so the steadier measure on a
+// loaded machine), medians over R repetitions. Prints a Markdown table; --json writes the same
+// rows and the load average at the start (scripts/bench.sh; docs/BENCHMARKS.md "ECC").
+//   build/bin/ecc_bench [--reps R] [--json OUT]
 // bench-links: vispack_pipeline
 #include <algorithm>
 #include <chrono>
@@ -14,8 +16,12 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <ctime>
 #include <random>
+#include <string>
 #include <vector>
+
+#include <unistd.h>
 
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
@@ -66,6 +72,13 @@ double corner_error(const cv::Matx23d& a, const cv::Matx23d& b, cv::Size size) {
   return worst;
 }
 
+// CPU seconds (user + system) the process has used so far.
+double cpu_seconds() {
+  timespec t{};
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+  return double(t.tv_sec) + 1e-9 * double(t.tv_nsec);
+}
+
 double median(std::vector<double> v) {
   std::sort(v.begin(), v.end());
   return v.empty() ? 0.0 : v[v.size() / 2];
@@ -75,11 +88,14 @@ double median(std::vector<double> v) {
 
 int main(int argc, char** argv) {
   int reps = 7;
+  std::string json_path;
   for (int i = 1; i < argc; ++i) {
     if (!std::strcmp(argv[i], "--reps") && i + 1 < argc) {
       reps = std::max(1, std::atoi(argv[++i]));
+    } else if (!std::strcmp(argv[i], "--json") && i + 1 < argc) {
+      json_path = argv[++i];
     } else {
-      std::fprintf(stderr, "usage: ecc_bench [--reps R]\n");
+      std::fprintf(stderr, "usage: ecc_bench [--reps R] [--json OUT]\n");
       return std::strcmp(argv[i], "--help") ? 2 : 0;
     }
   }
@@ -89,10 +105,13 @@ int main(int argc, char** argv) {
     cv::Size size;
     int blur;
   };
+  double load[3] = {0, 0, 0};
+  if (getloadavg(load, 3) != 3) load[0] = load[1] = load[2] = -1;
+  std::string rows_json;
   std::printf(
-      "| ECC run (one thread) | image | OpenCV ms | fused ms | OpenCV / fused | OpenCV error px | "
-      "fused error px |\n");
-  std::printf("|---|---|---|---|---|---|---|\n");
+      "| ECC run (one thread) | image | OpenCV ms | fused ms | OpenCV CPU ms | fused CPU ms | "
+      "OpenCV / fused (CPU) | OpenCV error px | fused error px |\n");
+  std::printf("|---|---|---|---|---|---|---|---|---|\n");
   for (const Case& k : {Case{"pair, fine level (ecc_scale 0.5)", {1024, 608}, 1},
                         Case{"CT anchor, working grid, first pass", {719, 427}, 5},
                         Case{"CT anchor, working grid, final pass", {719, 427}, 3}}) {
@@ -108,35 +127,71 @@ int main(int argc, char** argv) {
     o.iterations = 50;
     o.eps = 1e-5;
     o.blur_size = k.blur;
-    std::vector<double> t_cv, t_fused;
+    std::vector<double> t_cv, t_fused, c_cv, c_fused;
     double e_cv = 0, e_fused = 0;
     for (int r = 0; r < reps; ++r) {
       cv::Mat w(2, 3, CV_32F);
       for (int i = 0; i < 6; ++i)
         w.at<float>(i / 3, i % 3) = float(start.val[i]);
       auto t0 = std::chrono::steady_clock::now();
+      double c0 = cpu_seconds();
       cv::findTransformECC(
           tmpl, input, w, cv::MOTION_EUCLIDEAN,
           cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, o.iterations, o.eps),
           cv::noArray(), o.blur_size);
       t_cv.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+      c_cv.push_back(cpu_seconds() - c0);
       cv::Matx23d wcv;
       for (int i = 0; i < 6; ++i)
         wcv.val[i] = w.at<float>(i / 3, i % 3);
       e_cv = corner_error(wcv, truth, k.size);
       cv::Matx23d wf = start;
       t0 = std::chrono::steady_clock::now();
+      c0 = cpu_seconds();
       if (!vp::ecc_euclidean(tmpl, input, wf, o)) {
         std::fprintf(stderr, "ecc_bench: the fused ECC failed on %s\n", k.what);
         return 1;
       }
       t_fused.push_back(
           std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+      c_fused.push_back(cpu_seconds() - c0);
       e_fused = corner_error(wf, truth, k.size);
     }
-    std::printf("| %s | %dx%d, blur %d | %.1f | %.1f | %.2fx | %.4f | %.4f |\n", k.what,
-                k.size.width, k.size.height, k.blur, 1e3 * median(t_cv), 1e3 * median(t_fused),
-                median(t_cv) / median(t_fused), e_cv, e_fused);
+    std::printf("| %s | %dx%d, blur %d | %.1f | %.1f | %.1f | %.1f | %.2fx | %.4f | %.4f |\n",
+                k.what, k.size.width, k.size.height, k.blur, 1e3 * median(t_cv),
+                1e3 * median(t_fused), 1e3 * median(c_cv), 1e3 * median(c_fused),
+                median(c_cv) / median(c_fused), e_cv, e_fused);
+    char row[512];
+    std::snprintf(row, sizeof row,
+                  "%s\n    {\"what\": \"%s\", \"width\": %d, \"height\": %d, \"blur\": %d, "
+                  "\"opencv_ms\": %.3f, \"fused_ms\": %.3f, \"opencv_cpu_ms\": %.3f, "
+                  "\"fused_cpu_ms\": %.3f, \"opencv_error_px\": %.5f, \"fused_error_px\": %.5f}",
+                  rows_json.empty() ? "" : ",", k.what, k.size.width, k.size.height, k.blur,
+                  1e3 * median(t_cv), 1e3 * median(t_fused), 1e3 * median(c_cv),
+                  1e3 * median(c_fused), e_cv, e_fused);
+    rows_json += row;
+  }
+  if (!json_path.empty()) {
+    // Written whole to a temporary name, synced, then renamed: complete or not at all.
+    const std::string tmp = json_path + ".tmp";
+    FILE* out = std::fopen(tmp.c_str(), "w");
+    const bool written =
+        out &&
+        std::fprintf(
+            out,
+            "{\n  \"command\": \"ecc_bench --reps %d\",\n  \"reps\": %d,\n  \"threads\": 1,"
+            "\n  \"load_average\": [%.2f, %.2f, %.2f],\n  \"rows\": [%s\n  ]\n}\n",
+            reps, reps, load[0], load[1], load[2], rows_json.c_str()) > 0 &&
+        std::fflush(out) == 0 && fsync(fileno(out)) == 0;
+    if (out) std::fclose(out);
+    if (!written) {
+      std::fprintf(stderr, "ecc_bench: cannot write %s\n", tmp.c_str());
+      return 1;
+    }
+    if (std::rename(tmp.c_str(), json_path.c_str()) != 0) {
+      std::fprintf(stderr, "ecc_bench: cannot rename %s to %s\n", tmp.c_str(), json_path.c_str());
+      return 1;
+    }
   }
   return 0;
 }

@@ -15,6 +15,14 @@
 // it draws. --paged-only skips the whole-level measurements (which upload level 0 whole),
 // --no-paged the paged ones;
 // --modes LIST restricts the paged modes, --reps N sets the frames timed per row (median).
+// Long files (docs/BENCHMARKS.md, 'Viewer on long files'): --stack X,Y,Z --keep OUT.vpk writes a
+// synthetic stack slice by slice through the streaming writer (a body whose section changes
+// along z, colour, CT and labels, zeros outside it as the pipeline stores them, 4 runs of 3 lost
+// slices; memory: one brick row); --orbit then measures, as vispack-view opens a file: the first
+// picture (coarsest level; --eager-tree builds every level's brick tree first, as before), the
+// brick tree of every level, a colour frame after load, and an orbit of 36 frames (10 degrees
+// apart, each loaded in full) with the brick cache's resident bytes and the process's resident
+// set sampled every frame against the cache's budget (--max-gpu-mb).
 // Quality is the foreground PSNR (render::diff_foreground: pixels where either image is not
 // black) against vispack's CPU reference ray caster at 8 steps per voxel of the same transfer
 // function; the whole-frame PSNR is kept beside it for the record. scripts/bench/viewer_peers.py
@@ -27,7 +35,9 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
+#include <fstream>
 #include <optional>
 #include <string>
 #include <vector>
@@ -37,6 +47,7 @@
 #include "../render/synthetic_volume.h"
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/cli.h"
+#include "vispack/common/error.h"
 #include "vispack/format/writer.h"
 #include "vispack/render/brick_tree.h"
 #include "vispack/render/lost_slices.h"
@@ -91,6 +102,223 @@ nlohmann::json quality_row(const char* mode, int level, double spv, std::int64_t
           {"max_diff", d.max_diff},
           {"foreground_pixels", d.pixels},
           {"psnr_whole_frame_db", whole}};
+}
+
+// Resident set of this process (VmRSS), bytes; 0 when /proc is unreadable.
+std::int64_t resident_set_bytes() {
+  std::ifstream in("/proc/self/status");
+  std::string line;
+  while (std::getline(in, line))
+    if (line.rfind("VmRSS:", 0) == 0) return std::int64_t(std::atoll(line.c_str() + 6)) * 1024;
+  return 0;
+}
+
+// The synthetic stack of --stack, slice by slice: a body of elliptic section whose radii and
+// centre drift along z, smooth colour with 3 bits of noise (so that bricks compress like tissue,
+// not like a constant), CT soft tissue with two bone rods, labels skin (1), tissue (2), bone (3);
+// colour 0, CT -1024 HU and label 0 outside (what the pipeline stores outside the body mask).
+// Slices listed in `black` are black in colour (lost slices; listed in the metadata).
+void write_stack(const std::string& path, std::int64_t nx, std::int64_t ny, std::int64_t nz,
+                 const std::vector<std::int64_t>& black) {
+  format::WriterOptions o;
+  o.dims = {nx, ny, nz};
+  o.spacing_mm = {0.33, 0.33, 1.0};
+  o.brick_edge = 64;
+  o.threads = 2;
+  o.channels = {{"rgba", format::ChannelType::kRgba8},
+                {"ct", format::ChannelType::kInt16},
+                {"labels", format::ChannelType::kUint16}};
+  o.label_table = {
+      {1, "skin", {230, 180, 150}}, {2, "tissue", {200, 60, 60}}, {3, "bone", {240, 240, 220}}};
+  o.extra_metadata = {{"slices", {{"black", black}}}};
+  format::Writer writer(path, o);
+  const std::size_t plane = std::size_t(nx * ny);
+  std::vector<std::uint8_t> rgba(4 * plane);
+  std::vector<std::int16_t> ct(plane);
+  std::vector<std::uint16_t> labels(plane);
+  for (std::int64_t z = 0; z < nz; ++z) {
+    const double t = double(z) / double(std::max<std::int64_t>(nz - 1, 1));
+    const double rx = nx * (0.30 + 0.08 * std::sin(6.0 * t)),
+                 ry = ny * (0.33 + 0.05 * std::cos(4.0 * t));
+    const double cx = 0.5 * nx + 0.02 * nx * std::sin(3.0 * t), cy = 0.5 * ny;
+    const bool lost = std::binary_search(black.begin(), black.end(), z);
+    for (std::int64_t y = 0; y < ny; ++y)
+      for (std::int64_t x = 0; x < nx; ++x) {
+        const std::size_t i = std::size_t(x + nx * y);
+        const double ex = (double(x) - cx) / rx, ey = (double(y) - cy) / ry;
+        const double depth = (1.0 - std::sqrt(ex * ex + ey * ey)) * std::min(rx, ry);  // voxels
+        if (depth <= 0) {
+          std::memset(&rgba[4 * i], 0, 4);
+          ct[i] = -1024;
+          labels[i] = 0;
+          continue;
+        }
+        const double bx = std::fabs(double(x) - cx) - 0.35 * rx, by = double(y) - cy;
+        const bool bone = bx * bx + by * by < 0.01 * rx * rx;
+        std::uint64_t h = std::uint64_t(x + nx * (y + ny * z)) * 0x9E3779B97F4A7C15ull;
+        const int pattern = int((h ^ (h >> 29)) >> 61);  // 0..7, texture noise
+        if (lost) {
+          std::memset(&rgba[4 * i], 0, 4);
+        } else {
+          rgba[4 * i + 0] = std::uint8_t(std::min(255.0, 120 + 100 * ex * ex + pattern));
+          rgba[4 * i + 1] = std::uint8_t(std::min(255.0, 70 + 60 * std::fabs(ey) + pattern));
+          rgba[4 * i + 2] = std::uint8_t(60 + 40 * t);
+          rgba[4 * i + 3] = std::uint8_t(std::min(255.0, 128.0 * depth));
+        }
+        ct[i] = std::int16_t(bone ? 700 + 3 * pattern : 20 + 2 * pattern);
+        labels[i] = depth < 6 ? 1 : (bone ? 3 : 2);
+      }
+    writer.append_slice({rgba.data(), ct.data(), labels.data()});
+  }
+  writer.finish();
+}
+
+// The 4 runs of 3 lost slices of a stack of nz (at a fifth, two, three and four fifths).
+std::vector<std::int64_t> black_slices(std::int64_t nz) {
+  std::vector<std::int64_t> out;
+  for (int k = 1; k <= 4 && nz >= 15; ++k)
+    for (int j = 0; j < 3; ++j)
+      out.push_back(k * nz / 5 + j);
+  return out;
+}
+
+// What a user sees opening `path`: the first picture, the brick tree, a size² colour frame after
+// load and an orbit of 36 frames with the cache's memory against its budget.
+void orbit_bench(const std::string& path, int size, std::int64_t gpu_mb, bool eager, int reps,
+                 nlohmann::json& out) {
+  const double t_open = now(), cpu_open = cpu_seconds();
+  std::shared_ptr<const VolumeSource> source = fill_lost_slices(open_packed(path));
+  const double t_file = now() - t_open;
+  viewer::HeadlessContext context;
+  viewer::SliceRenderer renderer;
+  const double t_tree0 = now();
+  BrickTree tree(*source, eager ? TreeBuild::kEager : TreeBuild::kCoarseFirst);
+  const double tree_first_s = now() - t_tree0;
+  const std::int64_t level0_stats_first = tree.stats_reads(0);
+  viewer::BrickCache cache(*source, gpu_mb << 20, 0);
+  const LevelGeometry g0 = source->level(0);
+  const int levels = source->level_count();
+  OrbitParams orbit;
+  orbit.target = g0.box().centre();
+  orbit.azimuth_deg = 30;
+  orbit.elevation_deg = 20;
+  RenderParams p;  // vispack-view's colour defaults (its mode defaults are the app's)
+  p.opacity = 0.6;
+  p.label_colours = make_label_colours(source->labels(), 0.5);
+  p.reference_length_mm = reference_length(g0);
+  const unsigned ch = channels_for(p, tree.present_channels());
+  Camera cam = orbit_camera(orbit, g0.box(), size, size);
+  {
+    PlanOptions first;
+    first.finest_level = first.coarsest_level = levels - 1;
+    BrickPlan plan = plan_bricks(tree, cam, p, first, ch);
+    cache.request(plan.draw, ch);
+    cache.pump(-1);
+    cache.use(plan.draw);
+    renderer.render_bricks(cache, tree, plan, cam, p);
+    renderer.read_rgba8();
+  }
+  const double first_picture = now() - t_open, first_picture_cpu = cpu_seconds() - cpu_open;
+  const double t_all0 = now(), cpu_all0 = cpu_seconds();
+  tree.build_all();
+  const double tree_rest_s = now() - t_all0, tree_rest_cpu = cpu_seconds() - cpu_all0;
+  PlanOptions popt;
+  popt.max_bytes = gpu_mb << 20;
+  popt.border = viewer::BrickCache::kBorder;
+  // A frame after load: every brick of the plan resident, then timed (median of reps).
+  BrickPlan plan = plan_bricks(tree, cam, p, popt, ch);
+  double t0 = now();
+  cache.request(plan.draw, ch);
+  cache.pump(-1);
+  cache.use(plan.draw);
+  const double load_s = now() - t0;
+  renderer.render_bricks(cache, tree, plan, cam, p);  // warm-up (shader compile)
+  renderer.read_rgba8();
+  const double cpu0 = cpu_seconds();
+  const double frame_ms = median_ms(reps, [&] {
+    renderer.render_bricks(cache, tree, plan, cam, p);
+    renderer.read_rgba8();
+  });
+  const double frame_cpu = (cpu_seconds() - cpu0) / reps;
+  // The orbit: 36 frames 10 degrees apart, each loaded in full, then drawn and read back.
+  std::vector<double> orbit_ms, orbit_load_s;
+  std::int64_t max_resident = 0, max_rss = 0, evicted0 = cache.stats().evicted;
+  nlohmann::json frames = nlohmann::json::array();
+  const std::int64_t budget = cache.budget_bytes();
+  for (int f = 0; f < 36; ++f) {
+    OrbitParams o = orbit;
+    o.azimuth_deg = orbit.azimuth_deg + 10.0 * f;
+    const Camera c = orbit_camera(o, g0.box(), size, size);
+    const BrickPlan fp = plan_bricks(tree, c, p, popt, ch);
+    const double l0 = now();
+    cache.request(fp.draw, ch);
+    cache.pump(-1);
+    cache.use(fp.draw);
+    const double l1 = now();
+    renderer.render_bricks(cache, tree, fp, c, p);
+    renderer.read_rgba8();
+    const double l2 = now();
+    const std::int64_t resident = cache.stats().resident_bytes, rss = resident_set_bytes();
+    max_resident = std::max(max_resident, resident);
+    max_rss = std::max(max_rss, rss);
+    orbit_ms.push_back((l2 - l1) * 1e3);
+    orbit_load_s.push_back(l1 - l0);
+    frames.push_back({{"azimuth_deg", o.azimuth_deg},
+                      {"bricks", fp.draw.size()},
+                      {"load_s", l1 - l0},
+                      {"frame_ms", (l2 - l1) * 1e3},
+                      {"resident_mb", resident / 1e6},
+                      {"rss_mb", rss / 1e6}});
+  }
+  auto sorted = [](std::vector<double> v) {
+    std::sort(v.begin(), v.end());
+    return v;
+  };
+  const std::vector<double> ms = sorted(orbit_ms), ls = sorted(orbit_load_s);
+  int finest = levels - 1;
+  for (const BrickKey& k : plan.draw)
+    finest = std::min(finest, k.level);
+  std::printf(
+      "\n%s\n\nvolume %lldx%lldx%lld, bricks of %d, %d levels, %zu lost slices, %.2f GB; brick "
+      "tree %s; %dx%d frames; cache budget %lld MB\n\n| what | value |\n|---|---|\n"
+      "| open the file (index, metadata) | %.3f s |\n"
+      "| brick tree before the first picture | %.3f s (%lld level-0 stats read) |\n"
+      "| first picture after open (coarsest level, %dx%d) | %.3f s (%.2f CPU s) |\n"
+      "| brick tree of every level, after the first picture | %.3f s (%.2f CPU s) |\n"
+      "| colour frame after load: bricks (level %d..%d), load, frame | %zu, %.2f s, %.0f ms "
+      "(%.2f CPU s) |\n"
+      "| orbit of 36 frames: frame ms median / max | %.0f / %.0f |\n"
+      "| orbit: load s median / max (bricks not resident yet) | %.2f / %.2f |\n"
+      "| orbit: brick cache resident, max (budget) | %.0f MB (%lld MB): %s |\n"
+      "| orbit: evicted bricks / process resident set, max | %lld / %.0f MB |\n",
+      context.description().c_str(), (long long)g0.dims[0], (long long)g0.dims[1],
+      (long long)g0.dims[2], source->brick_edge(), levels, source->lost_slices().size(),
+      double(std::filesystem::file_size(path)) / 1e9, eager ? "eager (as before)" : "coarse first",
+      size, size, (long long)gpu_mb, t_file, tree_first_s, (long long)level0_stats_first, size,
+      size, first_picture, first_picture_cpu, tree_rest_s, tree_rest_cpu, finest, levels - 1,
+      plan.draw.size(), load_s, frame_ms, frame_cpu, ms[ms.size() / 2], ms.back(),
+      ls[ls.size() / 2], ls.back(), max_resident / 1048576.0, (long long)gpu_mb,
+      max_resident <= budget ? "within" : "OVER", (long long)(cache.stats().evicted - evicted0),
+      max_rss / 1e6);
+  out["orbit"] = {{"dims", g0.dims},
+                  {"levels", levels},
+                  {"tree", eager ? "eager" : "coarse_first"},
+                  {"open_s", t_file},
+                  {"tree_first_s", tree_first_s},
+                  {"first_picture_s", first_picture},
+                  {"first_picture_cpu_s", first_picture_cpu},
+                  {"tree_rest_cpu_s", tree_rest_cpu},
+                  {"tree_rest_s", tree_rest_s},
+                  {"load_s", load_s},
+                  {"frame_ms", frame_ms},
+                  {"frame_cpu_s", frame_cpu},
+                  {"budget_mb", gpu_mb},
+                  {"max_resident_mb", max_resident / 1048576.0},
+                  {"max_rss_mb", max_rss / 1e6},
+                  {"frames", frames}};
+  if (max_resident > budget)
+    throw Error(
+        cat("orbit: the brick cache held ", max_resident, " bytes, over its budget of ", budget));
 }
 
 void paged_bench(const std::string& path, int size, std::int64_t gpu_mb, bool psnr, int reps,
@@ -220,7 +448,10 @@ void paged_bench(const std::string& path, int size, std::int64_t gpu_mb, bool ps
 
 int main(int argc, char** argv) {
   return run_main("viewer_bench", argc, argv, [](Args& args) {
-    args.describe("[--file X.vpk] [--size N] [--dims X,Y,Z]", "Slice renderer benchmark.");
+    args.describe(
+        "[--file X.vpk] [--size N] [--dims X,Y,Z] | --stack X,Y,Z --keep OUT.vpk | "
+        "--orbit --file X.vpk [--eager-tree]",
+        "Slice renderer benchmark.");
     auto file = args.option("--file", "X.vpk", "packed volume (default: synthetic medium)");
     auto size_opt = args.option_int("--size", "N", "frame size (default 256)");
     std::string dims_text = args.option("--dims", "X,Y,Z", "synthetic dims", "512,384,160");
@@ -237,7 +468,31 @@ int main(int argc, char** argv) {
                                          "colour,ct,iso,labels,mip,tf2d");
     const int reps =
         int(args.option_int("--reps", "N", "frames timed per row (default 2)").value_or(2));
+    auto stack = args.option("--stack", "X,Y,Z",
+                             "write a synthetic stack slice by slice (with --keep) and stop");
+    bool orbit_run = args.flag("--orbit", "first picture, a frame and a 36-frame orbit (--file)");
+    bool eager = args.flag("--eager-tree", "--orbit: build every level's tree first (as before)");
     args.done();
+    if (stack) {
+      long long d[3];
+      if (std::sscanf(stack->c_str(), "%lld,%lld,%lld", &d[0], &d[1], &d[2]) != 3 || d[0] < 1 ||
+          d[1] < 1 || d[2] < 1)
+        throw UsageError("--stack must be X,Y,Z (positive)");
+      if (!keep) throw UsageError("--stack needs --keep OUT.vpk");
+      const double t0 = now();
+      write_stack(*keep, d[0], d[1], d[2], black_slices(d[2]));
+      std::printf("stack %lldx%lldx%lld written to %s in %.1f s (%.2f GB)\n", d[0], d[1], d[2],
+                  keep->c_str(), now() - t0, double(std::filesystem::file_size(*keep)) / 1e9);
+      return 0;
+    }
+    if (orbit_run) {
+      if (!file) throw UsageError("--orbit needs --file X.vpk");
+      nlohmann::json out;
+      std::setvbuf(stdout, nullptr, _IOLBF, 0);
+      orbit_bench(*file, int(size_opt.value_or(512)), gpu_mb.value_or(2048), eager, reps, out);
+      if (json_out) write_file_atomic(*json_out, out.dump(1));
+      return 0;
+    }
     if (reps < 1) throw UsageError("--reps must be at least 1");
     if (paged_only && no_paged) throw UsageError("--paged-only and --no-paged exclude each other");
     auto split = [](const std::string& text) {

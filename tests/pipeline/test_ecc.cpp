@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <random>
+#include <vector>
 
 #include <opencv2/imgproc.hpp>
 #include <opencv2/video/tracking.hpp>
@@ -194,4 +195,50 @@ TEST(Ecc, FailuresAreReported) {
   vp::EccOptions even;
   even.blur_size = 4;
   EXPECT_THROW(vp::ecc_euclidean(tmpl8, input8, w2, even), vispack::Error);
+}
+
+// The caller's divergence test (EccOptions::diverged): asked after every update with that
+// update's warp; the first true ends the refinement as a failure with `warp` at that update; a
+// test that never fires leaves every step, and so the result, as without one.
+TEST(Ecc, DivergenceTestEndsTheIterationAtTheFirstIterateBeyondTheReach) {
+  const cv::Size size(300, 220);
+  const cv::Mat input = texture(size, 9, 3.0);
+  const cv::Point2d c(0.5 * (size.width - 1), 0.5 * (size.height - 1));
+  const cv::Matx23d truth = rigid(1.2, {3.0, -2.0}, c);
+  const cv::Mat tmpl = warp_to_template(input, truth, size);
+  const cv::Matx23d start = rigid(0.0, {0.0, 0.0}, c);
+  vp::EccOptions plain;
+  plain.iterations = 40;
+  plain.eps = 1e-9;
+  cv::Matx23d free_warp = start;
+  const std::optional<double> free_rho = vp::ecc_euclidean(tmpl, input, free_warp, plain);
+  ASSERT_TRUE(free_rho.has_value());
+  EXPECT_LT(max_corner_px(free_warp, truth, size), 0.05);
+
+  // A reach that the path never leaves: the same result, bit for bit.
+  vp::EccOptions wide = plain;
+  int asked = 0;
+  wide.diverged = [&](const cv::Matx23d&) { return ++asked < 0; };
+  cv::Matx23d wide_warp = start;
+  const std::optional<double> wide_rho = vp::ecc_euclidean(tmpl, input, wide_warp, wide);
+  ASSERT_TRUE(wide_rho.has_value());
+  EXPECT_EQ(*wide_rho, *free_rho);
+  EXPECT_EQ(cv::norm(cv::Mat(wide_warp), cv::Mat(free_warp), cv::NORM_INF), 0.0);
+  EXPECT_GT(asked, 1);
+
+  // A reach of 1 px in translation from the start: the path (which travels ~3.6 px) stops at its
+  // first iterate beyond it, reported as a failure, the warp at that iterate.
+  vp::EccOptions near = plain;
+  std::vector<cv::Matx23d> iterates;
+  near.diverged = [&](const cv::Matx23d& w) {
+    iterates.push_back(w);
+    return std::hypot(w(0, 2) - start(0, 2), w(1, 2) - start(1, 2)) > 1.0;
+  };
+  cv::Matx23d near_warp = start;
+  EXPECT_FALSE(vp::ecc_euclidean(tmpl, input, near_warp, near).has_value());
+  ASSERT_FALSE(iterates.empty());
+  EXPECT_LT(int(iterates.size()), asked);
+  for (std::size_t i = 0; i + 1 < iterates.size(); ++i)
+    EXPECT_LE(std::hypot(iterates[i](0, 2) - start(0, 2), iterates[i](1, 2) - start(1, 2)), 1.0);
+  EXPECT_EQ(cv::norm(cv::Mat(near_warp), cv::Mat(iterates.back()), cv::NORM_INF), 0.0);
 }

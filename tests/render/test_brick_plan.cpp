@@ -197,6 +197,97 @@ TEST(BrickPlan, SkipsOnlyBricksThatCannotContribute) {
   }
 }
 
+TEST(BrickTree, CoarseFirstReadsTheCoarsestLevelThenBuildsTheEagerTree) {
+  // docs/BENCHMARKS.md, 'Viewer on long files': a kCoarseFirst tree reads the stats of the
+  // coarsest level's bricks only and plans that level only; built in small steps it becomes the
+  // eager tree (every range, every plan). With and without lost slices (whose bricks' stats are
+  // computed from the filled data).
+  auto v = synthetic::make_synthetic(44, 36, 28);
+  std::shared_ptr<const VolumeSource> plain = packed(*v, 8, "lazy.vpk");
+  std::shared_ptr<const VolumeSource> lost =
+      std::make_shared<LostSliceSource>(plain, std::vector<std::int64_t>{9, 10, 21});
+  for (const auto& src : {plain, lost}) {
+    BrickTree eager(*src);
+    BrickTree lazy(*src, TreeBuild::kCoarseFirst);
+    const int top = eager.levels() - 1;
+    ASSERT_GE(top, 3);
+    const auto& gt = eager.grid(top);
+    EXPECT_FALSE(lazy.complete());
+    for (int l = 0; l < top; ++l)
+      EXPECT_EQ(lazy.stats_reads(l), 0) << "level " << l;
+    EXPECT_EQ(lazy.stats_reads(top), gt[0] * gt[1] * gt[2]);
+    EXPECT_EQ(eager.stats_reads(top), 0);  // the eager tree ranges level 0's stats only
+    RenderParams p;
+    p.label_colours = make_label_colours(src->labels(), 0.5);
+    const Camera cam = view(eager.volume_box(), 30, 20, 3.0);
+    const unsigned ch = channels_for(p, eager.present_channels());
+    const BrickPlan first = plan_bricks(lazy, cam, p, PlanOptions{}, ch);
+    ASSERT_FALSE(first.draw.empty());
+    for (const BrickKey& k : first.draw)
+      EXPECT_EQ(k.level, top);
+    int steps = 0;
+    double progress = lazy.build_progress();
+    EXPECT_EQ(progress, 0.0);
+    while (!lazy.build_step(7)) {
+      ++steps;
+      EXPECT_GT(lazy.build_progress(), progress);
+      progress = lazy.build_progress();
+      EXPECT_LT(progress, 1.0);
+    }
+    EXPECT_EQ(lazy.build_progress(), 1.0);
+    const auto& g0 = eager.grid(0);
+    EXPECT_GT(steps, g0[0] * g0[1] * g0[2] / 7 - 1);  // small steps, as asked
+    EXPECT_EQ(lazy.stats_reads(0), g0[0] * g0[1] * g0[2]);
+    // Every brick's ranges: the same skipping decisions in every mode.
+    std::vector<RenderParams> cases(5, p);
+    cases[0].mode = Mode::kColour;
+    cases[1].mode = Mode::kIso;
+    cases[1].iso_hu = 500;
+    cases[2].mode = Mode::kLabels;
+    cases[2].highlight_label = 3;
+    cases[2].dim_factor = 0;
+    cases[3].mode = Mode::kCt;
+    cases[3].window_center_hu = 600;
+    cases[3].window_width_hu = 200;
+    cases[4].mode = Mode::kIso;
+    cases[4].iso_hu = 30;
+    std::int64_t skipped = 0;
+    for (int l = 0; l <= top; ++l) {
+      const auto& g = eager.grid(l);
+      for (std::int64_t z = 0; z < g[2]; ++z)
+        for (std::int64_t y = 0; y < g[1]; ++y)
+          for (std::int64_t x = 0; x < g[0]; ++x)
+            for (const RenderParams& c : cases) {
+              const bool e = eager.may_contribute({l, {x, y, z}}, c);
+              skipped += !e;
+              ASSERT_EQ(lazy.may_contribute({l, {x, y, z}}, c), e)
+                  << "level " << l << " brick " << x << "," << y << "," << z << " "
+                  << mode_name(c.mode);
+            }
+    }
+    EXPECT_GT(skipped, 0);  // the cases do skip bricks
+    // Plans: ideal, under a byte budget, with a partly resident cache.
+    for (const RenderParams& c : cases)
+      for (double zoom : {1.0, 4.0}) {
+        const Camera cc = view(eager.volume_box(), 70, -15, zoom);
+        PlanOptions o;
+        o.max_bytes = zoom > 1 ? 200000 : 0;
+        const unsigned cch = channels_for(c, eager.present_channels());
+        const ResidentFn resident = [](const BrickKey& k) { return k.level >= 1; };
+        for (const ResidentFn* r : {static_cast<const ResidentFn*>(nullptr), &resident}) {
+          const BrickPlan a = plan_bricks(eager, cc, c, o, cch, r ? *r : ResidentFn{});
+          const BrickPlan b = plan_bricks(lazy, cc, c, o, cch, r ? *r : ResidentFn{});
+          EXPECT_TRUE(a.draw == b.draw) << mode_name(c.mode) << " zoom " << zoom;
+          EXPECT_TRUE(a.missing == b.missing) << mode_name(c.mode) << " zoom " << zoom;
+          EXPECT_EQ(a.skipped, b.skipped);
+          EXPECT_EQ(a.culled, b.culled);
+          EXPECT_EQ(a.bytes, b.bytes);
+          EXPECT_EQ(a.lod_pixels, b.lod_pixels);
+        }
+      }
+  }
+}
+
 TEST(LostSlices, InterpolatedFromTheNearestValidSlices) {
   auto v = std::make_shared<VolumeData>();
   v->geometry.dims = {3, 2, 8};

@@ -386,6 +386,66 @@ TEST_F(Bricks, CoarseBricksFirstThenRefinedAsTheyArrive) {
   EXPECT_EQ(rounds, tree_->levels());  // the coarsest brick, then one round per finer level
 }
 
+TEST_F(Bricks, CoarseFirstTreeDrawsTheCoarsestLevelFirstThenTheEagerImage) {
+  // vispack-view's path on opening a file (docs/BENCHMARKS.md, 'Viewer on long files'): the
+  // first picture is planned and drawn before any finer level's stats are read, and equals the
+  // eager tree's picture of the coarsest level; once the tree is built, every frame (levels
+  // following the screen footprint) equals the eager tree's, pixel for pixel.
+  const int top = tree_->levels() - 1;
+  ASSERT_GE(top, 2);
+  auto differing = [](const Image8& a, const Image8& b) {  // bytes that differ
+    if (a.rgba.size() != b.rgba.size()) return std::ptrdiff_t(-1);
+    std::ptrdiff_t n = 0;
+    for (std::size_t i = 0; i < a.rgba.size(); ++i)
+      n += a.rgba[i] != b.rgba[i];
+    return n;
+  };
+  BrickTree lazy(*source_, TreeBuild::kCoarseFirst);
+  for (Mode m : {Mode::kColour, Mode::kIso, Mode::kLabels}) {
+    const Camera cam = camera(96, 30, 20, 2.0);
+    RenderParams p = params(m);
+    const unsigned ch = channels_for(p, tree_->present_channels());
+    BrickPlan first = plan_bricks(lazy, cam, p, PlanOptions{}, ch);
+    for (const BrickKey& k : first.draw)
+      EXPECT_EQ(k.level, top) << mode_name(m);
+    for (int l = 0; l < top; ++l)
+      EXPECT_EQ(lazy.stats_reads(l), 0) << "level " << l << " read before the first picture";
+    EXPECT_FALSE(lazy.complete());
+    cache_->request(first.draw, ch);
+    cache_->pump(-1);
+    cache_->use(first.draw);
+    renderer_->render_bricks(*cache_, lazy, first, cam, p);
+    const Image8 lazy_first = renderer_->read_rgba8();
+    const Image8 eager_first = bricked(plan_level(top, cam, p), cam, p);
+    EXPECT_GT(count_non_background(lazy_first, std::array<std::uint8_t, 3>{0, 0, 0}.data()), 0);
+    EXPECT_EQ(differing(lazy_first, eager_first), 0) << mode_name(m) << ": first picture";
+  }
+  lazy.build_all();
+  ASSERT_TRUE(lazy.complete());
+  for (Mode m : {Mode::kColour, Mode::kIso, Mode::kLabels, Mode::kCt})
+    for (double zoom : {1.0, 4.0}) {
+      const Camera cam = camera(96, 60, 10, zoom);
+      RenderParams p = params(m);
+      const unsigned ch = channels_for(p, tree_->present_channels());
+      BrickPlan settled = plan_bricks(lazy, cam, p, PlanOptions{}, ch);
+      cache_->request(settled.draw, ch);
+      cache_->pump(-1);
+      cache_->use(settled.draw);
+      renderer_->render_bricks(*cache_, lazy, settled, cam, p);
+      const Image8 lazy_img = renderer_->read_rgba8();
+      BrickPlan eager = plan_bricks(*tree_, cam, p, PlanOptions{}, ch);
+      int finest = top;
+      for (const BrickKey& k : settled.draw)
+        finest = std::min(finest, k.level);
+      if (zoom > 1) {
+        EXPECT_LT(finest, top) << mode_name(m) << ": the settled frame is refined";
+      }
+      EXPECT_EQ(settled.draw.size(), eager.draw.size()) << mode_name(m);
+      EXPECT_EQ(differing(lazy_img, bricked(eager, cam, p)), 0)
+          << mode_name(m) << " zoom " << zoom << ": settled frame";
+    }
+}
+
 TEST_F(Bricks, LostSlicesAreSampledAcrossNeverABlackBand) {
   // Slice 13 of the colour is black in the file and listed as lost; the viewer interpolates
   // slices 12 and 14. Truth: the original volume (smooth along z, so the interpolation is

@@ -4,6 +4,8 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <functional>
+#include <utility>
 #include <vector>
 
 #include <opencv2/imgproc.hpp>
@@ -53,12 +55,15 @@ cv::Matx23d to_full(const cv::Matx23d& m, double sx, double sy) {
 }
 
 // ECC on (template, input) from `m` (template → input pixels); updates m. Returns rho or −1.
+// `rejected` (optional): the caller's test of a result it would throw away; the iteration stops
+// as a failure at the first iterate that fails it (EccOptions::diverged), instead of creeping on.
 double ecc(const cv::Mat& tmpl, const cv::Mat& input, cv::Matx23d& m, int iterations, double eps,
-           int blur) {
+           int blur, std::function<bool(const cv::Matx23d&)> rejected = {}) {
   EccOptions options;
   options.iterations = iterations;
   options.eps = eps;
   options.blur_size = blur;
+  options.diverged = std::move(rejected);
   cv::Matx23d w = m;
   const std::optional<double> rho = ecc_euclidean(tmpl, input, w, options);
   if (!rho) return -1.0;
@@ -261,10 +266,14 @@ std::optional<cv::Matx23d> capture(const cv::Mat& tmpl, const cv::Mat& input) {
   cv::GaussianBlur(tmpl, t, cv::Size(0, 0), 1.5);
   cv::GaussianBlur(input, in, cv::Size(0, 0), 1.5);
   cv::Matx23d refined = m;
-  if (ecc(t, in, refined, 40, 1e-4, 1) > 0.0) {
-    const double moved = std::hypot(refined(0, 2) - m(0, 2), refined(1, 2) - m(1, 2));
-    if (moved < 0.15 * std::max(tmpl.cols, tmpl.rows)) m = refined;
-  }
+  const double reach = 0.15 * std::max(tmpl.cols, tmpl.rows);
+  auto moved = [&](const cv::Matx23d& w) {
+    return std::hypot(w(0, 2) - m(0, 2), w(1, 2) - m(1, 2));
+  };
+  if (ecc(t, in, refined, 40, 1e-4, 1,
+          [&](const cv::Matx23d& w) { return !(moved(w) < kEccRunawayFactor * reach); }) > 0.0 &&
+      moved(refined) < reach)
+    m = refined;
   return m;
 }
 
@@ -347,14 +356,15 @@ std::optional<cv::Matx23d> refine_multimodal(const cv::Mat& tmpl, const cv::Mat&
     if (!fit_colour_to_ct(warped, valid, t, coef)) return std::nullopt;
     const cv::Mat predicted = predict_ct(col, coef);
     const cv::Matx23d before = ml;
+    // A refinement that runs far from its start has diverged.
+    auto too_far = [&, reach = 0.1 * std::max(t.cols, t.rows)](const cv::Matx23d& w, double k) {
+      return std::hypot(w(0, 2) - before(0, 2), w(1, 2) - before(1, 2)) > k * reach;
+    };
     // A wide blur widens the basin at half resolution; the final pass blurs less, as the
     // polynomial is applied before the blur (edges mixing two tissues map imperfectly).
-    rho = ecc(t, predicted, ml, iterations, 1e-5, level < 1.0 ? 5 : 3);
-    if (rho < 0.0) return std::nullopt;
-    // A refinement that runs far from its start has diverged.
-    if (std::hypot(ml(0, 2) - before(0, 2), ml(1, 2) - before(1, 2)) >
-        0.1 * std::max(t.cols, t.rows))
-      return std::nullopt;
+    rho = ecc(t, predicted, ml, iterations, 1e-5, level < 1.0 ? 5 : 3,
+              [&](const cv::Matx23d& w) { return too_far(w, kEccRunawayFactor); });
+    if (rho < 0.0 || too_far(ml, 1.0)) return std::nullopt;
     start = to_full(ml, lx, ly);
   }
   *rho_out = rho;
@@ -370,10 +380,14 @@ std::optional<cv::Matx23d> refine_multimodal(const cv::Mat& tmpl, const cv::Mat&
 cv::Matx23d refine_outline(const cv::Mat& soft_ct, const cv::Mat& soft_colour, const cv::Matx23d& m,
                            int iterations) {
   cv::Matx23d outline = m;
-  if (ecc(soft_ct, soft_colour, outline, 2 * iterations, 1e-7, 3) > 0.0 &&
-      std::hypot(outline(0, 2) - m(0, 2), outline(1, 2) - m(1, 2)) < kOutlineReachPx &&
-      std::abs(std::atan2(outline(1, 0), outline(0, 0)) - std::atan2(m(1, 0), m(0, 0))) <
-          kOutlineTurnDeg * kPi / 180.0)
+  auto within = [&](const cv::Matx23d& w, double k) {
+    return std::hypot(w(0, 2) - m(0, 2), w(1, 2) - m(1, 2)) < k * kOutlineReachPx &&
+           std::abs(std::atan2(w(1, 0), w(0, 0)) - std::atan2(m(1, 0), m(0, 0))) <
+               k * kOutlineTurnDeg * kPi / 180.0;
+  };
+  if (ecc(soft_ct, soft_colour, outline, 2 * iterations, 1e-7, 3,
+          [&](const cv::Matx23d& w) { return !within(w, kEccRunawayFactor); }) > 0.0 &&
+      within(outline, 1.0))
     return outline;
   return m;
 }

@@ -280,6 +280,7 @@ std::optional<double> ecc_euclidean(const cv::Mat& tmpl, const cv::Mat& input, c
     m(1, 0) = std::sin(theta);
     m(0, 1) = -m(1, 0);
     warp = m;
+    if (options.diverged && options.diverged(m)) return std::nullopt;
   }
   return rho;
 }

@@ -145,6 +145,11 @@ RegisterFrame prepare_frame(const cv::Mat& slice, const RegisterOptions& options
     f.coarse_scale = double(f.coarse.cols) / slice.cols;
   }
   if (f.fine_scale < 1.0) f.fine_scale = double(f.fine.cols) / slice.cols;
+  if (f.fine_scale >= 3.0 * f.coarse_scale) {
+    f.middle = resize_to(f.fine, 0.5);
+    f.middle_scale = double(f.middle.cols) / slice.cols;
+    cv::GaussianBlur(f.middle, f.middle, cv::Size(5, 5), 0, 0);
+  }
   // The 5×5 Gaussian that ECC applies to both images of every pair, done once per frame
   // (a frame takes part in up to four pairs).
   const bool shared = f.coarse.data == f.fine.data;

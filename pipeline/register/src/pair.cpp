@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <map>
 #include <optional>
 
@@ -25,14 +26,18 @@ constexpr int kLookBack = 4;  // edges reach back over at most 4 slices
 constexpr double kFineEps = 1e-5;
 
 // ECC at one level; `m` (full-resolution j→k matrix) is updated in place on success. Returns
-// rho, or nullopt where ECC fails (m unchanged).
+// rho, or nullopt where ECC fails (m unchanged). `too_far` (optional) is given each iterate as a
+// full-resolution matrix; true fails the refinement at once (EccOptions::diverged).
 std::optional<double> ecc_level(const cv::Mat& from, const cv::Mat& to, double scale,
-                                cv::Matx23d& m, int iterations, double eps) {
+                                cv::Matx23d& m, int iterations, double eps,
+                                const std::function<bool(const cv::Matx23d&)>& too_far = {}) {
   cv::Matx23d ms = scale_affine(m, scale);
   EccOptions options;
   options.iterations = iterations;
   options.eps = eps;
   options.blur_size = 1;  // the frames are pre-blurred (prepare_frame)
+  if (too_far)
+    options.diverged = [&](const cv::Matx23d& w) { return too_far(unscale_affine(w, scale)); };
   const std::optional<double> rho = ecc_euclidean(from, to, ms, options);
   if (rho) m = unscale_affine(ms, scale);
   return rho;
@@ -44,13 +49,32 @@ std::optional<double> ecc_level(const cv::Mat& from, const cv::Mat& to, double s
 bool refine_fine(const RegisterFrame& from, const RegisterFrame& to, const RegisterOptions& options,
                  const Rigid& start, cv::Matx23d m, PairEstimate& est) {
   const cv::Point2d centre = image_centre(from.full_size);
-  const std::optional<double> rho = ecc_level(from.fine, to.fine, from.fine_scale, m,
-                                              std::max(1, options.ecc_iterations), kFineEps);
-  if (!rho) return false;  // ECC did not converge
+  const double reach = 4.0 / from.coarse_scale;
+  auto travel = [&](const Rigid& r) {  // how far an estimate lies from `start`
+    return rigid_motion_px(
+        {r.rotation_deg - start.rotation_deg, r.dx_px - start.dx_px, r.dy_px - start.dy_px},
+        from.full_size);
+  };
+  // An iterate twice beyond the reach ends the refinement: on slices whose anatomy differs the
+  // iteration creeps on for tens of pixels, to be rejected below (docs/BENCHMARKS.md "Register
+  // stage: CPU per slice").
+  auto too_far = [&](const cv::Matx23d& full) {
+    return travel(rigid_from_matrix(full, centre)) >= kEccRunawayFactor * reach;
+  };
+  // A first pass at the middle level (a quarter of the pixels): the fine pass then starts
+  // where the middle one ended, a few fine iterations from its own optimum.
+  if (!from.middle.empty() && from.middle.size() == to.middle.size()) {
+    cv::Matx23d mm = m;
+    if (ecc_level(from.middle, to.middle, from.middle_scale, mm,
+                  std::max(1, options.ecc_iterations), kFineEps, too_far))
+      m = mm;
+  }
+  const std::optional<double> rho =
+      ecc_level(from.fine, to.fine, from.fine_scale, m, std::max(1, options.ecc_iterations),
+                kFineEps, too_far);
+  if (!rho) return false;  // ECC did not converge, or ran away
   const Rigid refined = rigid_from_matrix(m, centre);
-  const Rigid diff{refined.rotation_deg - start.rotation_deg, refined.dx_px - start.dx_px,
-                   refined.dy_px - start.dy_px};
-  if (rigid_motion_px(diff, from.full_size) < 4.0 / from.coarse_scale) {
+  if (travel(refined) < reach) {
     est.relative = refined;
     est.quality = std::clamp(*rho, 0.0, 1.0);
     est.ecc_ok = true;

@@ -335,6 +335,7 @@ render::PlanOptions plan_options(const ViewOptions& options, int levels) {
 
 int run_screenshot(const ViewOptions& options) {
   auto t_open = std::chrono::steady_clock::now();
+  const double cpu_open = process_cpu_seconds();
   std::shared_ptr<const render::VolumeSource> source =
       render::fill_lost_slices(render::open_packed(options.file));
   HeadlessContext context;
@@ -349,7 +350,9 @@ int run_screenshot(const ViewOptions& options) {
 
   const int levels = source->level_count();
   const double t_context = seconds_since(t_open);
-  render::BrickTree tree(*source);
+  // The coarsest level's ranges only: nothing whose cost grows with the stack before the first
+  // picture (docs/BENCHMARKS.md, 'Viewer on long files'); every level's once it is drawn.
+  render::BrickTree tree(*source, render::TreeBuild::kCoarseFirst);
   const double t_tree = seconds_since(t_open);
   const unsigned channels = render::channels_for(params, tree.present_channels());
   BrickCache cache(*source, options.max_gpu_mb << 20, options.threads);
@@ -368,11 +371,17 @@ int run_screenshot(const ViewOptions& options) {
     renderer.render_bricks(cache, tree, plan, camera, params);
     renderer.read_rgba8();
     std::fprintf(stderr,
-                 "first frame (level %d): %.3f s after open (file + context %.3f, brick tree "
-                 "%.3f, shaders %.3f, coarsest bricks %.3f, frame %.3f)\n",
-                 levels - 1, seconds_since(t_open), t_context, t_tree - t_context,
-                 t_renderer - t_tree, t_loaded - t_renderer, seconds_since(t_open) - t_loaded);
+                 "first frame (level %d): %.3f s after open, %.3f CPU s (file + context %.3f, "
+                 "brick tree of the coarsest level %.3f, shaders %.3f, coarsest bricks %.3f, "
+                 "frame %.3f)\n",
+                 levels - 1, seconds_since(t_open), process_cpu_seconds() - cpu_open, t_context,
+                 t_tree - t_context, t_renderer - t_tree, t_loaded - t_renderer,
+                 seconds_since(t_open) - t_loaded);
   }
+  const auto t_tree_all = std::chrono::steady_clock::now();
+  tree.build_all();
+  if (options.timings)
+    std::fprintf(stderr, "brick tree of every level: %.3f s\n", seconds_since(t_tree_all));
   auto t_load = std::chrono::steady_clock::now();
   render::BrickPlan plan = render::plan_bricks(tree, camera, params, popt, channels);
   cache.reset_counters();

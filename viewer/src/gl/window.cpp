@@ -279,8 +279,10 @@ void panel_render_params(State& state, Panel& panel, const render::LevelGeometry
 }
 
 // Frame time, the bricks drawn per level, skipped, culled and loading, GPU memory, lost slices.
-void panel_status(const FrameResult& frame, double frame_ms, int levels, const BrickCache& cache,
-                  std::int64_t max_gpu_mb, const std::vector<std::int64_t>& lost) {
+void panel_status(const FrameResult& frame, double frame_ms, const render::BrickTree& tree,
+                  const BrickCache& cache, std::int64_t max_gpu_mb,
+                  const std::vector<std::int64_t>& lost) {
+  const int levels = tree.levels();
   int per_level[64] = {0};
   for (const render::BrickKey& k : frame.plan.draw)
     per_level[std::min(k.level, 63)]++;
@@ -292,6 +294,8 @@ void panel_status(const FrameResult& frame, double frame_ms, int levels, const B
   ImGui::Text("skipped (empty) %lld, culled %lld, loading %zu", (long long)frame.plan.skipped,
               (long long)frame.plan.culled, frame.plan.missing.size());
   ImGui::Text("GPU %.0f / %lld MB", cs.resident_bytes / 1048576.0, (long long)max_gpu_mb);
+  if (!tree.complete())  // the coarsest level is drawn until then (brick_tree.h, TreeBuild)
+    ImGui::Text("brick tree of the finer levels: %.0f %%", 100.0 * tree.build_progress());
   if (!lost.empty()) {
     std::string list;
     for (std::size_t i = 0; i < lost.size() && i < 12; ++i)
@@ -425,7 +429,9 @@ int run_window(const ViewOptions& options) {
   glfwSetKeyCallback(window, on_key);
 
   const int levels = source->level_count();
-  render::BrickTree tree(*source);
+  // The coarsest level's ranges only; every level's are built across the frames that follow
+  // (docs/BENCHMARKS.md, 'Viewer on long files').
+  render::BrickTree tree(*source, render::TreeBuild::kCoarseFirst);
   BrickCache cache(*source, options.max_gpu_mb << 20, options.threads);
   const render::PlanOptions base_plan = plan_options(options, levels);
   SliceRenderer renderer;
@@ -476,7 +482,7 @@ int run_window(const ViewOptions& options) {
     const FrameResult frame = draw_frame(state, g0, tree, cache, base_plan, renderer, area, fh);
     frame_ms = 0.9 * frame_ms + 0.1 * frame.render_ms;
     if (next_command < script.size() && !frame.moving && frame.plan.missing.empty() &&
-        !cache.busy()) {
+        !cache.busy() && tree.complete()) {
       const Command& c = script[next_command];
       if (c.verb == "screenshot") render::write_png(c.arg, read_window(area, fh));
       ++next_command;
@@ -497,7 +503,7 @@ int run_window(const ViewOptions& options) {
       panel_rect = {int(pos.x), int(pos.y), int(std::ceil(size.x)), int(std::ceil(size.y))};
     }
     panel_render_params(state, panel, g0);
-    panel_status(frame, frame_ms, levels, cache, options.max_gpu_mb, lost);
+    panel_status(frame, frame_ms, tree, cache, options.max_gpu_mb, lost);
     if (state.params.mode == render::Mode::kLabels) {
       const char* shadings[] = {"flat", "modulated by intensity", "ramp per segment"};
       int sh = int(state.params.label_shading);
@@ -513,6 +519,8 @@ int run_window(const ViewOptions& options) {
     ImGui_ImplOpenGL3_RenderDrawData(ImGui::GetDrawData());
 #endif
     glfwSwapBuffers(window);
+    // The finer levels' ranges, a slice of time per frame (more while the view rests).
+    if (!tree.complete()) tree.build_for(frame.moving ? 0.03 : 0.25);
   }
   return 0;
 }

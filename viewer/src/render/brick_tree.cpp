@@ -1,6 +1,7 @@
 #include "vispack/render/brick_tree.h"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstring>
 #include <limits>
@@ -49,7 +50,7 @@ void merge_labels(std::vector<std::uint16_t>& into, const std::vector<std::uint1
 
 }  // namespace
 
-BrickTree::BrickTree(const VolumeSource& source)
+BrickTree::BrickTree(const VolumeSource& source, TreeBuild build)
     : source_(&source), edge_(std::max(1, source.brick_edge())) {
   const int levels = source.level_count();
   if (levels < 1) throw std::invalid_argument(source.name() + ": no levels");
@@ -59,76 +60,128 @@ BrickTree::BrickTree(const VolumeSource& source)
     geometry_.push_back(source.level(l));
     grid_.push_back(brick_grid(source, l));
   }
-  // Own ranges: level 0 from the stats, coarser levels as the union of their children.
-  std::vector<std::vector<Range>> own(static_cast<std::size_t>(levels));
-  for (int l = 0; l < levels; ++l) {
-    const auto& g = grid_[std::size_t(l)];
-    own[std::size_t(l)].resize(std::size_t(g[0] * g[1] * g[2]));
-  }
-  {
-    const auto& g = grid_[0];
-    for (std::int64_t bz = 0; bz < g[2]; ++bz)
-      for (std::int64_t by = 0; by < g[1]; ++by)
-        for (std::int64_t bx = 0; bx < g[0]; ++bx) {
-          Range& r = own[0][index({0, {bx, by, bz}})];
-          if (present_ & channel_bit(Channel::kRgba))
-            r.alpha_max = int(source.brick_stats(Channel::kRgba, 0, {bx, by, bz}).max[3]);
-          if (present_ & channel_bit(Channel::kCt)) {
-            BrickStats s = source.brick_stats(Channel::kCt, 0, {bx, by, bz});
-            r.ct_min = s.min[0];
-            r.ct_max = s.max[0];
-          }
-          if (present_ & channel_bit(Channel::kLabels))
-            for (std::uint32_t id : source.brick_stats(Channel::kLabels, 0, {bx, by, bz}).labels)
-              if (id < 65536) r.labels.push_back(std::uint16_t(id));
-        }
-  }
-  for (int l = 1; l < levels; ++l) {
-    const auto& g = grid_[std::size_t(l)];
-    const auto& gc = grid_[std::size_t(l - 1)];
-    for (std::int64_t bz = 0; bz < g[2]; ++bz)
-      for (std::int64_t by = 0; by < g[1]; ++by)
-        for (std::int64_t bx = 0; bx < g[0]; ++bx) {
-          Range& r = own[std::size_t(l)][index({l, {bx, by, bz}})];
-          bool first = true;
-          for (int k = 0; k < 8; ++k) {
-            std::array<std::int64_t, 3> c{2 * bx + (k & 1), 2 * by + ((k >> 1) & 1),
-                                          2 * bz + ((k >> 2) & 1)};
-            if (c[0] >= gc[0] || c[1] >= gc[1] || c[2] >= gc[2]) continue;
-            const Range& cr = own[std::size_t(l - 1)][index({l - 1, c})];
-            r.alpha_max = std::max(r.alpha_max, cr.alpha_max);
-            r.ct_min = first ? cr.ct_min : std::min(r.ct_min, cr.ct_min);
-            r.ct_max = first ? cr.ct_max : std::max(r.ct_max, cr.ct_max);
-            merge_labels(r.labels, cr.labels);
-            first = false;
-          }
-        }
-  }
-  // Dilation by the 26 neighbours at the same level.
+  stats_reads_.assign(std::size_t(levels), 0);
   ranges_.resize(std::size_t(levels));
+  own_.resize(std::size_t(levels));
+  dilated_.resize(std::size_t(levels));
   for (int l = 0; l < levels; ++l) {
     const auto& g = grid_[std::size_t(l)];
-    auto& out = ranges_[std::size_t(l)];
-    out.resize(own[std::size_t(l)].size());
-    for (std::int64_t bz = 0; bz < g[2]; ++bz)
-      for (std::int64_t by = 0; by < g[1]; ++by)
-        for (std::int64_t bx = 0; bx < g[0]; ++bx) {
-          Range& r = out[index({l, {bx, by, bz}})];
-          r = own[std::size_t(l)][index({l, {bx, by, bz}})];
-          for (std::int64_t z = std::max<std::int64_t>(bz - 1, 0); z <= std::min(bz + 1, g[2] - 1);
-               ++z)
-            for (std::int64_t y = std::max<std::int64_t>(by - 1, 0);
-                 y <= std::min(by + 1, g[1] - 1); ++y)
-              for (std::int64_t x = std::max<std::int64_t>(bx - 1, 0);
-                   x <= std::min(bx + 1, g[0] - 1); ++x) {
-                const Range& n = own[std::size_t(l)][index({l, {x, y, z}})];
-                r.alpha_max = std::max(r.alpha_max, n.alpha_max);
-                r.ct_min = std::min(r.ct_min, n.ct_min);
-                r.ct_max = std::max(r.ct_max, n.ct_max);
-                merge_labels(r.labels, n.labels);
-              }
-        }
+    own_[std::size_t(l)].resize(std::size_t(g[0] * g[1] * g[2]));
+    units_total_ += 2 * g[0] * g[1] * g[2];  // own, then dilated
   }
+  if (build == TreeBuild::kCoarseFirst && levels > 1) {
+    // The coarsest level ranged by its own bricks' stats: what a frame of that level samples.
+    const int top = levels - 1;
+    const auto& g = grid_[std::size_t(top)];
+    std::vector<Range> own(std::size_t(g[0] * g[1] * g[2]));
+    for (std::size_t i = 0; i < own.size(); ++i) {
+      const std::int64_t n = std::int64_t(i);
+      own[i] = read_own({top, {n % g[0], (n / g[0]) % g[1], n / (g[0] * g[1])}});
+    }
+    auto& out = ranges_[std::size_t(top)];
+    out.resize(own.size());
+    for (std::size_t i = 0; i < own.size(); ++i) {
+      const std::int64_t n = std::int64_t(i);
+      out[i] = dilated(own, {top, {n % g[0], (n / g[0]) % g[1], n / (g[0] * g[1])}});
+    }
+    return;
+  }
+  build_all();
+}
+
+BrickTree::Range BrickTree::read_own(const BrickKey& k) {
+  Range r;
+  const int l = k.level;
+  ++stats_reads_[std::size_t(l)];
+  if (present_ & channel_bit(Channel::kRgba))
+    r.alpha_max = int(source_->brick_stats(Channel::kRgba, l, k.brick).max[3]);
+  if (present_ & channel_bit(Channel::kCt)) {
+    BrickStats s = source_->brick_stats(Channel::kCt, l, k.brick);
+    r.ct_min = s.min[0];
+    r.ct_max = s.max[0];
+  }
+  if (present_ & channel_bit(Channel::kLabels))
+    for (std::uint32_t id : source_->brick_stats(Channel::kLabels, l, k.brick).labels)
+      if (id < 65536) r.labels.push_back(std::uint16_t(id));
+  return r;
+}
+
+// Dilation by the 26 neighbours at the same level.
+BrickTree::Range BrickTree::dilated(const std::vector<Range>& own, const BrickKey& k) const {
+  const auto& g = grid_[std::size_t(k.level)];
+  const std::int64_t bx = k.brick[0], by = k.brick[1], bz = k.brick[2];
+  Range r = own[index(k)];
+  for (std::int64_t z = std::max<std::int64_t>(bz - 1, 0); z <= std::min(bz + 1, g[2] - 1); ++z)
+    for (std::int64_t y = std::max<std::int64_t>(by - 1, 0); y <= std::min(by + 1, g[1] - 1); ++y)
+      for (std::int64_t x = std::max<std::int64_t>(bx - 1, 0); x <= std::min(bx + 1, g[0] - 1);
+           ++x) {
+        const Range& n = own[index({k.level, {x, y, z}})];
+        r.alpha_max = std::max(r.alpha_max, n.alpha_max);
+        r.ct_min = std::min(r.ct_min, n.ct_min);
+        r.ct_max = std::max(r.ct_max, n.ct_max);
+        merge_labels(r.labels, n.labels);
+      }
+  return r;
+}
+
+bool BrickTree::build_step(std::int64_t max_units) {
+  const int levels = int(geometry_.size());
+  for (std::int64_t done = 0; !complete_ && done < std::max<std::int64_t>(max_units, 1); ++done) {
+    const int l = build_level_;
+    const auto& g = grid_[std::size_t(l)];
+    const std::int64_t count = g[0] * g[1] * g[2];
+    const BrickKey k{l, {cursor_ % g[0], (cursor_ / g[0]) % g[1], cursor_ / (g[0] * g[1])}};
+    if (phase_ == 0) {
+      // Own ranges: level 0 from the stats, coarser levels as the union of their children.
+      Range& r = own_[std::size_t(l)][std::size_t(cursor_)];
+      if (l == 0) {
+        r = read_own(k);
+      } else {
+        const auto& gc = grid_[std::size_t(l - 1)];
+        bool first = true;
+        for (int c = 0; c < 8; ++c) {
+          std::array<std::int64_t, 3> b{2 * k.brick[0] + (c & 1), 2 * k.brick[1] + ((c >> 1) & 1),
+                                        2 * k.brick[2] + ((c >> 2) & 1)};
+          if (b[0] >= gc[0] || b[1] >= gc[1] || b[2] >= gc[2]) continue;
+          r.merge(own_[std::size_t(l - 1)][index({l - 1, b})], first);
+          first = false;
+        }
+      }
+    } else {
+      auto& out = dilated_[std::size_t(l)];
+      if (out.empty()) out.resize(std::size_t(count));
+      out[std::size_t(cursor_)] = dilated(own_[std::size_t(l)], k);
+    }
+    ++units_done_;
+    if (++cursor_ < count) continue;
+    cursor_ = 0;
+    if (++build_level_ < levels) continue;
+    build_level_ = 0;
+    if (++phase_ == 2) finish_build();
+  }
+  return complete_;
+}
+
+bool BrickTree::build_for(double seconds) {
+  using clock = std::chrono::steady_clock;
+  const auto end = clock::now() + std::chrono::duration<double>(std::max(seconds, 0.0));
+  do
+    build_step(64);
+  while (!complete_ && clock::now() < end);
+  return complete_;
+}
+
+void BrickTree::build_all() {
+  while (!build_step(std::int64_t(1) << 20)) {
+  }
+}
+
+void BrickTree::finish_build() {
+  ranges_.swap(dilated_);
+  dilated_.clear();
+  own_.clear();
+  own_.shrink_to_fit();
+  complete_ = true;
 }
 
 std::size_t BrickTree::index(const BrickKey& k) const {
@@ -173,7 +226,9 @@ std::int64_t BrickTree::brick_bytes(const BrickKey& key, unsigned channels, int 
 }
 
 bool BrickTree::may_contribute(const BrickKey& key, const RenderParams& p) const {
-  return range_may_contribute(ranges_.at(std::size_t(key.level))[index(key)], p);
+  const std::vector<Range>& ranges = ranges_.at(std::size_t(key.level));
+  if (ranges.empty()) return true;  // not built yet (kCoarseFirst, a finer level)
+  return range_may_contribute(ranges[index(key)], p);
 }
 
 void ValueRange::merge(const ValueRange& o, bool first) {
@@ -437,9 +492,11 @@ bool finite_matrix(const Mat4& m) {
 BrickPlan plan_bricks(const BrickTree& tree, const Camera& cam, const RenderParams& params,
                       const PlanOptions& options, unsigned channels, const ResidentFn& resident) {
   const int levels = tree.levels();
-  const int coarsest =
-      options.coarsest_level < 0 ? levels - 1 : std::min(options.coarsest_level, levels - 1);
-  const int finest = std::clamp(options.finest_level, 0, coarsest);
+  // An incomplete tree (TreeBuild::kCoarseFirst) has ranged its coarsest level only.
+  const int coarsest = !tree.complete() || options.coarsest_level < 0
+                           ? levels - 1
+                           : std::min(options.coarsest_level, levels - 1);
+  const int finest = tree.complete() ? std::clamp(options.finest_level, 0, coarsest) : coarsest;
   Mat4 vp = cam.view_projection();
   if (!finite_matrix(vp) || !is_finite(cam.eye) || !is_finite(cam.forward)) return {};
   Vec3 eye_point = cam.eye;

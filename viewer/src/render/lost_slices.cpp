@@ -91,8 +91,12 @@ BrickStats LostSliceSource::brick_stats(Channel c, int level,
     Region r = brick_region(*this, level, brick);
     const std::vector<std::int64_t>& lost = lost_[std::size_t(level)];
     auto it = std::lower_bound(lost.begin(), lost.end(), r.offset[2]);
-    if (it != lost.end() && *it < r.offset[2] + r.size[2])
-      return VolumeSource::brick_stats(c, level, brick);  // computed from the filled data
+    if (it != lost.end() && *it < r.offset[2] + r.size[2]) {  // computed from the filled data
+      std::lock_guard<std::mutex> lock(scratch_mutex_);
+      scratch_.resize(std::size_t(r.voxels()) * std::size_t(channel_bytes(c)));
+      read_region(c, level, r, scratch_.data());
+      return compute_brick_stats(c, scratch_.data(), std::size_t(r.voxels()));
+    }
   }
   return inner_->brick_stats(c, level, brick);
 }

@@ -19,6 +19,7 @@
 // a valid visibility order for a grid of boxes, hence for the octree traversal.
 #pragma once
 
+#include <algorithm>
 #include <array>
 #include <cstdint>
 #include <functional>
@@ -80,11 +81,26 @@ int cell_edge(int brick_edge);
 void accumulate_cells(CellGrid& grid, Channel c, const std::uint8_t* data,
                       const std::array<std::int64_t, 3>& size, int border);
 
+// How a BrickTree builds its ranges (docs/BENCHMARKS.md, 'Viewer on long files').
+enum class TreeBuild {
+  // Every level's ranges in the constructor (reads every brick's stats of level 0).
+  kEager,
+  // The constructor reads the stats of the coarsest level's bricks only (a constant handful:
+  // the coarsest level fits one brick or a few) and ranges them by their own stats; the ranges
+  // of every level (the eager ones) are built afterwards by build_step / build_all, in small
+  // steps (across frames). Until complete(), plan_bricks plans the coarsest level only, which
+  // its own stats range exactly (a drawn brick samples its own level's voxels). Once complete(),
+  // the tree, hence every plan and image, is the eager one.
+  kCoarseFirst,
+};
+
 class BrickTree {
  public:
-  // Reads the stats of every brick of every level of `source` (from the file's index for a
-  // packed file: cheap). The source must outlive the tree.
-  explicit BrickTree(const VolumeSource& source);
+  // Reads the stats of the bricks (from the file's index for a packed file; a lost-slice source
+  // decodes the bricks its lost slices cross): every level's for kEager, the coarsest level's
+  // for kCoarseFirst (see TreeBuild). The source must outlive the tree.
+  // Thread-safety: none (one thread builds, plans and draws).
+  explicit BrickTree(const VolumeSource& source, TreeBuild build = TreeBuild::kEager);
 
   const VolumeSource& source() const { return *source_; }
   int levels() const { return int(geometry_.size()); }
@@ -96,20 +112,49 @@ class BrickTree {
   // World box of a brick, clipped to the level-0 box.
   Box3 brick_box(const BrickKey& key) const;
   // False when no sample in the brick can be visible under `params` (see the header comment).
+  // Before complete(), a brick finer than the coarsest level answers true (unknown).
   bool may_contribute(const BrickKey& key, const RenderParams& params) const;
   // Texture bytes of one brick with `border` voxels on each side, for `channels`.
   std::int64_t brick_bytes(const BrickKey& key, unsigned channels, int border) const;
   std::int64_t brick_voxels(const BrickKey& key) const;
 
+  // Whether every level's ranges are built (always true for kEager).
+  bool complete() const { return complete_; }
+  // Advances the build by at most `max_units` units of work (one unit: one level-0 brick's
+  // stats, one coarser brick's union of its children, or one brick's dilation); returns
+  // complete(). The total is about 1.3 units per level-0 brick for each of own and dilated.
+  bool build_step(std::int64_t max_units);
+  // Advances the build for about `seconds` of wall time (at least one unit); returns complete().
+  bool build_for(double seconds);
+  void build_all();
+  // Share of the build done, in [0, 1] (1 once complete()).
+  double build_progress() const {
+    return complete_ ? 1.0 : double(units_done_) / double(std::max<std::int64_t>(units_total_, 1));
+  }
+  // Instrumentation: brick_stats calls made so far for bricks of level `level` (all channels).
+  std::int64_t stats_reads(int level) const { return stats_reads_.at(std::size_t(level)); }
+
  private:
   using Range = ValueRange;
   std::size_t index(const BrickKey& k) const;
+  Range read_own(const BrickKey& k);  // from the source's stats
+  Range dilated(const std::vector<Range>& own, const BrickKey& k) const;
+  void finish_build();
+
   const VolumeSource* source_;
   int edge_ = 1;
   unsigned present_ = 0;
   std::vector<LevelGeometry> geometry_;
   std::vector<std::array<std::int64_t, 3>> grid_;
-  std::vector<std::vector<Range>> ranges_;  // per level, dilated
+  std::vector<std::vector<Range>> ranges_;  // per level, dilated (before complete(): coarsest)
+  std::vector<std::int64_t> stats_reads_;   // per level
+  bool complete_ = false;
+  // The build in progress: `own_` per level (level 0 from the stats, coarser levels the union
+  // of their children), then `dilated_` per level; phase 0 fills own_, phase 1 dilated_, each
+  // level by level from 0, brick by brick (`cursor_`, the linear brick index).
+  std::vector<std::vector<Range>> own_, dilated_;
+  int phase_ = 0, build_level_ = 0;
+  std::int64_t cursor_ = 0, units_done_ = 0, units_total_ = 0;
 };
 
 struct PlanOptions {
@@ -140,7 +185,8 @@ using ResidentFn = std::function<bool(const BrickKey&)>;
 // Plans one frame. Without `resident` every brick counts as resident (the ideal plan). With it,
 // a brick is refined only when all its children that the frame needs are resident (the others
 // are listed in `missing`), so the drawn set always tiles the visible volume: coarse bricks
-// first, refined as finer ones arrive.
+// first, refined as finer ones arrive. While the tree is not complete() only its coarsest level
+// is planned (whatever the options' levels).
 BrickPlan plan_bricks(const BrickTree& tree, const Camera& camera, const RenderParams& params,
                       const PlanOptions& options, unsigned channels,
                       const ResidentFn& resident = {});

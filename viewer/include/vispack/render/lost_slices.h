@@ -14,6 +14,7 @@
 #pragma once
 
 #include <memory>
+#include <mutex>
 #include <vector>
 
 #include "vispack/render/volume.h"
@@ -44,6 +45,11 @@ class LostSliceSource final : public VolumeSource {
   bool is_lost(int level, std::int64_t z) const;
   std::shared_ptr<const VolumeSource> inner_;
   std::vector<std::vector<std::int64_t>> lost_;  // per level, sorted
+  // brick_stats' brick buffer, kept between calls: a fresh megabyte per brick is returned to
+  // the system and faulted in again at each call (allocator trimming), which cost the brick
+  // tree half its time (docs/BENCHMARKS.md, 'Viewer on long files').
+  mutable std::mutex scratch_mutex_;
+  mutable std::vector<std::uint8_t> scratch_;
 };
 
 // Wraps `source` in a LostSliceSource when it lists lost slices; returns it unchanged otherwise.

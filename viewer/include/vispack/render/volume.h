@@ -86,6 +86,10 @@ class VolumeSource {
   virtual std::vector<std::int64_t> lost_slices() const { return {}; }
 };
 
+// The statistics of `voxels` voxels of channel `c` in the viewer's layout (what the default
+// VolumeSource::brick_stats computes from a brick it reads).
+BrickStats compute_brick_stats(Channel c, const std::uint8_t* data, std::size_t voxels);
+
 // Brick grid of a level: ceil(dims / brick_edge) per axis.
 std::array<std::int64_t, 3> brick_grid(const VolumeSource& source, int level);
 // The voxels of one brick of a level: [b·edge, min((b + 1)·edge, dims)) per axis.

@@ -15,6 +15,7 @@
 // Pure and thread-safe; runs on the calling thread.
 #pragma once
 
+#include <functional>
 #include <optional>
 
 #include <opencv2/core.hpp>
@@ -25,7 +26,19 @@ struct EccOptions {
   int iterations = 50;  // at most this many updates
   double eps = 1e-5;    // stop when the correlation changes by less than this
   int blur_size = 1;    // Gaussian blur (odd kernel size, σ from the size) of both images first
+  // Optional (not in OpenCV): called with the warp after each update; returning true ends the
+  // refinement as a failure (nullopt, `warp` holding that update). A caller that rejects a result
+  // too far from its start says so here and stops an iteration that has run away (on slices
+  // whose anatomy differs, ECC can creep tens of pixels a few tenths at a time until the limit)
+  // instead of paying for the remaining iterations. Must be thread-safe if shared.
+  std::function<bool(const cv::Matx23d&)> diverged;
 };
+
+// How much farther than the caller's own rejection limit an iterate must lie for `diverged` to end
+// the iteration: a path may overshoot its limit and come back (on the `anatomy` 5:1 case, ending
+// at the limit itself moved a mask slice's IoU by 0.001); the runaway paths this is for leave by
+// tens of times.
+inline constexpr double kEccRunawayFactor = 2.0;
 
 // Refines `warp` (a rotation + translation, template → input pixels; its rotation part must be
 // a rotation) so that the warped input best correlates with `tmpl`, and returns the correlation

@@ -21,6 +21,10 @@ struct RegisterFrame {
   double coarse_scale = 1.0;  // coarse size / full size
   cv::Mat fine;               // CV_32F at ecc_scale, 5×5 Gaussian (may share data with coarse)
   double fine_scale = 1.0;
+  // CV_32F at half of fine's scale, 5×5 Gaussian, where fine lies at least 3× above coarse
+  // (the first pass of a pair's fine ECC, at a quarter of its cost a step); empty otherwise.
+  cv::Mat middle;
+  double middle_scale = 0.0;
   // The colour level of the CT anchor (register/ct_anchor.h): CV_32FC3 RGB in [0, 1] at
   // anchor_scale of full resolution (INTER_AREA, no blur); empty when not asked for.
   cv::Mat anchor_colour;

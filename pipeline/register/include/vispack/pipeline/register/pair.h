@@ -7,8 +7,12 @@
 //      coarse ECC; the better one is kept. This finds block jumps of tens of pixels and several
 //      degrees without paying for the sweep on ordinary neighbours.
 //   2. ECC at ecc_scale from the coarse estimate (at most register.ecc_iterations iterations,
-//      stopping when the correlation no longer improves). The final correlation coefficient is
-//      the pair's quality. If ECC fails, the phase estimate is kept with quality <= 0.5.
+//      stopping when the correlation no longer improves), after a first pass at half ecc_scale
+//      where that lies well above the coarse level (2048×1216 at ecc_scale 0.5: 512 then 1024
+//      px wide). A result more than 4 coarse pixels from the start is a failure; either pass
+//      stops at its first iterate twice that far (ecc.h kEccRunawayFactor). The final
+//      correlation coefficient is the pair's quality. If ECC fails, the phase estimate is kept
+//      with quality <= 0.5.
 //   "phase" stops after the sweep (quality = normalised correlation); "none" gives identities.
 // A pair estimate measures drift AND anatomy: tissue that changes from slice to slice (an
 // outline that moves as the stack rises) moves the best match. How the global solve keeps that
