@@ -54,6 +54,7 @@ def plot(stacks, img):
     ax[1].set_ylabel("peak resident memory, MiB")
     for a in ax:
         a.set_xscale("log")
+        a.minorticks_off()
         a.set_xticks([s["slices"] for s in male])
         a.set_xticklabels([str(s["slices"]) for s in male])
         a.set_xlabel("slices (2048×1216, vispack-run --threads 2)")
@@ -68,9 +69,15 @@ def plot(stacks, img):
     return "![CPU-s per slice and peak resident memory against slice count](img/full_length.png)\n"
 
 
+def titled(text, header, rows):
+    """A paragraph and the table under it."""
+    return [text + "\n", table(header, rows)]
+
+
 def section(data):
     m = data["machine"]
-    stacks = data["stacks"]
+    # Male stacks by length, then the others (the run may have taken them in another order).
+    stacks = sorted(data["stacks"], key=lambda s: (s["preset"] != "male", s["slices"]))
     commit = m["commit"][:7]
     date = m["date"][:10]
     md = [TITLE, f"<!-- kept after: real_size; measured: {commit} {date} --> (measured by "
@@ -124,22 +131,22 @@ def section(data):
             srows.append([s["name"], st["stage"], fmt(st["wall_s"]), fmt(st["cpu_s"]),
                           f"{st['cpu_s'] / s['slices']:.3f}", f"{st['peak_rss_mib']:,.0f}",
                           gb(st["read_bytes"]), gb(st["write_bytes"])])
-    md.append("Per stage, warm runs (`pass` = the one streaming pass: mask, labels and the pack's "
-              "slices; `pack` = the pack's end after the pass; the vdb stage reads the `.vpk`):\n")
-    md.append(table(["stack", "stage", "wall s", "CPU s", "CPU-s / slice", "peak RSS MiB (sampled)",
-                     "read from storage GB", "written GB"], srows))
+    md += titled("Per stage, warm runs (`pass` = the one streaming pass: mask, labels and the pack's "
+                 "slices; `pack` = the pack's end after the pass; the vdb stage reads the `.vpk`):",
+                 ["stack", "stage", "wall s", "CPU s", "CPU-s / slice", "peak RSS MiB (sampled)",
+                  "read from storage GB", "written GB"], srows)
     # Generator.
     grows = []
-    for s in stacks:
+    for s in (s for s in stacks if s.get("generate")):
         g = s["generate"]["generate"]
         b = s["generate"]["bytes"]
         grows.append([s["name"], s["slices"], fmt(g["wall_s"]), fmt(g["cpu_s"]),
                       f"{g['cpu_s'] / s['slices']:.3f}", f"{g['peak_rss_mib']:,.0f}",
                       gb(b["rgb"] + b["ct"] + b["seg"]), f"{b['truth'] / 1e6:.1f}"])
-    md.append("The generator (`vispack-phantom --threads 2`, streamed; its memory is one slice per "
-              "thread plus a sampled slice's truth, whatever the length):\n")
-    md.append(table(["stack", "slices", "wall s", "CPU s", "CPU-s / slice", "peak RSS MiB",
-                     "input folders GB", "truth MB"], grows))
+    md += titled("The generator (`vispack-phantom --threads 2`, streamed; its memory is one slice per "
+                 "thread plus a sampled slice's truth, whatever the length):",
+                 ["stack", "slices", "wall s", "CPU s", "CPU-s / slice", "peak RSS MiB",
+                  "input folders GB", "truth MB"], grows)
     # Scores.
     qrows = []
     for s in stacks:
@@ -152,10 +159,10 @@ def section(data):
                       f"{q['drift_rms_px']:.3f}", f"{j['found']} of {j['true']}, {j['false']} false",
                       fmt(q.get("mask_mean_body_iou"), 4), fmt(q.get("labels_accuracy"), 4),
                       f"{q['truth_sample']} sampled slices"])
-    md.append("Scored against the truth (`vispack-score`; drift over all slices, masks and labels "
-              "on the truth sample):\n")
-    md.append(table(["stack", "drift over the body rms / max px", "drift rms px (frame corners)",
-                     "jumps", "mask mean IoU", "labels equal", "scored"], qrows))
+    md += titled("Scored against the truth (`vispack-score`; drift over all slices, masks and labels "
+                 "on the truth sample):",
+                 ["stack", "drift over the body rms / max px", "drift rms px (frame corners)",
+                  "jumps", "mask mean IoU", "labels equal", "scored"], qrows)
     errors = [f"- {s['name']}: {s['error']}" for s in stacks if s.get("error")]
     if data.get("stopped"):
         errors.append(f"- stopped: {data['stopped']}")
@@ -284,7 +291,7 @@ def main():
     text = section(data)
     img = os.path.join(docs, "img")
     os.makedirs(img, exist_ok=True)
-    text = text.replace("PLOT_PLACEHOLDER", plot(data["stacks"], img) or "")
+    text = text.replace("PLOT_PLACEHOLDER", plot(sorted(data["stacks"], key=lambda s: s["slices"]), img) or "")
     path = os.path.join(docs, "BENCHMARKS.md")
     doc = open(path).read()
     if TITLE + "\n" in doc:
