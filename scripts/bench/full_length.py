@@ -323,14 +323,22 @@ def score(args, folder):
     return out
 
 
-def bench_stack(args, name, preset, slices, extra, width, height):
+def bench_stack(args, name, preset, slices, extra, width, height, out, save):
+    """Generates, runs and scores one stack; its row is in out["stacks"] from the start and saved
+    after every run, so a run stopped later keeps what was measured."""
     row = {"name": name, "preset": preset, "slices": slices, "width": width, "height": height,
            "runs": []}
+    out["stacks"].append(row)
     folder = os.path.join(args.work, name)
+    modes = [False] if args.no_cold else [True, False]
+    if args.warm_first:
+        modes.reverse()
     try:
         folder, row["generate"] = generate(args, name, preset, slices, extra)
-        for cold in ([True, False] if not args.no_cold else [False]):
+        save()
+        for cold in modes:
             row["runs"].append(run_once(args, name, folder, width * height, slices, cold))
+            save()
         row["score"] = score(args, folder)
         log(f"{name}: score {json.dumps(row['score'])}")
     except RuntimeError as e:
@@ -354,6 +362,8 @@ def main():
     ap.add_argument("--keep-free-gb", type=float, default=10)
     ap.add_argument("--keep-stacks", action="store_true")
     ap.add_argument("--no-cold", action="store_true")
+    ap.add_argument("--warm-first", action="store_true",
+                    help="the warm run first (after reading the inputs once), then the cold one")
     args = ap.parse_args()
     args.work, args.results = os.path.abspath(args.work), os.path.abspath(args.results)
     os.makedirs(args.results, exist_ok=True)
@@ -377,7 +387,7 @@ def main():
                      ["--blocks", "4", "--black-slices", "3"], 4368, 2912))
     try:
         for name, preset, n, extra, w, h in plan:
-            out["stacks"].append(bench_stack(args, name, preset, n, extra, w, h))
+            bench_stack(args, name, preset, n, extra, w, h, out, save)
             save()
     except DiskFull as e:
         out["stopped"] = str(e)

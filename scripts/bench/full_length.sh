@@ -7,7 +7,7 @@
 # a plain scripts/bench.sh do not run it (scripts/bench.sh --full-length does). About 45 minutes
 # of two cores and 25 GB of disk at the default lengths; run as root for the cold page cache.
 # Usage: scripts/bench/full_length.sh [--build DIR] [--no-build] [--slices "128 512 1871"]
-#          [--korean N] [--work DIR] [--keep-free-gb GB] [--keep-stacks] [--report]
+#          [--korean N] [--work DIR] [--keep-free-gb GB] [--keep-stacks] [--warm-first] [--report]
 #          [--require-clean]
 #   --slices     male stack lengths (default "128 512 1871")
 #   --korean N   slices of the Korean-sized stack (default 64; 0: none)
@@ -16,13 +16,14 @@
 #   --keep-free-gb GB  stop with a message before (or kill a run when) the free space of the work
 #                folder would fall under GB (default 10)
 #   --keep-stacks  keep the generated stacks (default: each deleted after its runs)
+#   --warm-first the warm run first, then the cold one (default: cold, then warm)
 #   --report     write the section into docs/BENCHMARKS.md and the plot into docs/img
 #   --require-clean  refuse to run from a tree that differs from its commit
 # Results: BUILD/bench/full_length/results/full_length.json and the logs beside it.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
 build=${VISPACK_BENCH_BUILD:-$root/build} do_build=1 report=0 require_clean=0 work=""
-slices="128 512 1871" korean=64 keep_free=10 keep_stacks=()
+slices="128 512 1871" korean=64 keep_free=10 keep_stacks=() order=()
 while [[ $# -gt 0 ]]; do
   case "$1" in
     --build) build=$(realpath -m "$2"); shift ;;
@@ -32,9 +33,10 @@ while [[ $# -gt 0 ]]; do
     --work) work=$(realpath -m "$2"); shift ;;
     --keep-free-gb) keep_free=$2; shift ;;
     --keep-stacks) keep_stacks=(--keep-stacks) ;;
+    --warm-first) order=(--warm-first) ;;
     --report) report=1 ;;
     --require-clean) require_clean=1 ;;
-    -h|--help) sed -n '2,24p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,25p' "$0"; exit 0 ;;
     *) echo "full_length.sh: unknown option $1" >&2; exit 2 ;;
   esac
   shift
@@ -63,7 +65,7 @@ mkdir -p "$res" "$work"
 "$py" "$root/scripts/bench/machine.py" >"$res/machine.json"
 status=0
 "$py" "$root/scripts/bench/full_length.py" --bin "$build/bin" --work "$work" --results "$res" \
-  --slices "$slices" --korean "$korean" --keep-free-gb "$keep_free" "${keep_stacks[@]}" || status=$?
+  --slices "$slices" --korean "$korean" --keep-free-gb "$keep_free" "${keep_stacks[@]}" "${order[@]}" || status=$?
 if [[ $report == 1 && -f $res/full_length.json ]]; then
   "$py" "$root/scripts/bench/full_length_report.py" "$res" "$root/docs"
 fi
