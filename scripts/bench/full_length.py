@@ -211,33 +211,49 @@ def stage_rows(stages):
     return rows
 
 
+def truth_every(args, slices):
+    """--truth-every, or by default about 30 sampled truth slices (every 64th of the male)."""
+    return args.truth_every or max(2, min(64, slices // 29))
+
+
+def generator_command(args, name, preset, slices, extra):
+    return [os.path.join(args.bin, "vispack-phantom"), "--out", os.path.join(args.work, name),
+            "--preset", preset, "--slices", str(slices), "--rgb-raw", "--truth-every",
+            str(truth_every(args, slices)), "--seed", "1", "--threads", "2", "--quiet",
+            "--keep-free-gb", str(args.keep_free_gb)] + extra
+
+
+def write_stamp(folder, cmd, tv, date, load0):
+    """stack.json: how the stack was made (the key a later run compares) and what it cost."""
+    info = {"key": {"args": cmd[1:], "generator_sha256": sha256(cmd[0])}, "date": date,
+            "command": " ".join(["vispack-phantom"] + cmd[1:]), "generate": tv,
+            "load_before": load0, "load_after": os.getloadavg(),
+            "bytes": {d: du(os.path.join(folder, d)) for d in ("rgb", "ct", "seg", "truth")}}
+    stamp = os.path.join(folder, "stack.json")
+    with open(stamp + ".tmp", "w") as f:
+        json.dump(info, f, indent=1)
+    os.replace(stamp + ".tmp", stamp)
+    return info
+
+
 def generate(args, name, preset, slices, extra):
     """The stack folder, generated unless one made by the same generator binary with the same
     arguments is there (its stack.json says so)."""
     folder = os.path.join(args.work, name)
-    gen = os.path.join(args.bin, "vispack-phantom")
-    cmd = [gen, "--out", folder, "--preset", preset, "--slices", str(slices), "--rgb-raw",
-           "--truth-every", str(args.truth_every), "--seed", "1", "--threads", "2", "--quiet",
-           "--keep-free-gb", str(args.keep_free_gb)] + extra
-    key = {"args": cmd[1:], "generator_sha256": sha256(gen)}
+    cmd = generator_command(args, name, preset, slices, extra)
     stamp = os.path.join(folder, "stack.json")
     if os.path.exists(stamp):
         old = json.load(open(stamp))
-        if old.get("key") == key:
+        if old.get("key") == {"args": cmd[1:], "generator_sha256": sha256(cmd[0])}:
             log(f"{name}: reusing the stack generated {old.get('date', '?')}")
             return folder, old
     shutil.rmtree(folder, ignore_errors=True)
     os.makedirs(args.work, exist_ok=True)
     log(f"{name}: generating {slices} slices ({preset})")
     load0 = os.getloadavg()
+    date = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     tv = read_time_v_run(cmd, os.path.join(args.results, f"{name}-generate.time"))
-    info = {"key": key, "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-            "command": " ".join(["vispack-phantom"] + cmd[1:]), "slices": slices,
-            "preset": preset, "generate": tv, "load_before": load0, "load_after": os.getloadavg(),
-            "bytes": {d: du(os.path.join(folder, d)) for d in ("rgb", "ct", "seg", "truth")}}
-    with open(stamp + ".tmp", "w") as f:
-        json.dump(info, f, indent=1)
-    os.replace(stamp + ".tmp", stamp)
+    info = write_stamp(folder, cmd, tv, date, load0)
     log(f"{name}: generated in {tv['wall_s']} s, {tv['cpu_s']:.0f} CPU-s, peak "
         f"{tv['peak_rss_mib']:.0f} MiB")
     return folder, info
@@ -358,7 +374,8 @@ def main():
     ap.add_argument("--results", required=True)
     ap.add_argument("--slices", default="128 512 1871")
     ap.add_argument("--korean", type=int, default=64, help="slices of the Korean-sized stack (0: none)")
-    ap.add_argument("--truth-every", type=int, default=64)
+    ap.add_argument("--truth-every", type=int, default=0,
+                    help="truth sample step (default: about 30 slices, at most every 64th)")
     ap.add_argument("--keep-free-gb", type=float, default=10)
     ap.add_argument("--keep-stacks", action="store_true")
     ap.add_argument("--no-cold", action="store_true")
@@ -370,7 +387,7 @@ def main():
     os.makedirs(args.work, exist_ok=True)
     out = {"machine": dict(machine.provenance(), date=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
                            cores=os.cpu_count(), load_start=os.getloadavg()),
-           "truth_every": args.truth_every, "keep_free_gb": args.keep_free_gb, "stacks": []}
+           "truth_every": args.truth_every or "about 30 slices", "keep_free_gb": args.keep_free_gb, "stacks": []}
     path = os.path.join(args.results, "full_length.json")
 
     def save():

@@ -89,12 +89,12 @@ def section(data):
         f"{m['date']} – {m.get('date_end', '?')}, {m['cores']} cores, shared machine (other helpers "
         f"built beside it: the load average is given per run; CPU-s are the measure to compare, wall "
         f"times are inflated by the load). Stacks: `vispack-phantom --preset male --slices N "
-        f"--rgb-raw --blocks 4 --black-slices 12 --truth-every {data['truth_every']}` (2048×1216 "
+        f"--rgb-raw --blocks 4 --black-slices 12 --truth-every K` (2048×1216 "
         "planar `.raw` colour, 512×512 CT at 1.4 mm px / 1 mm slices, colour-coded segmentation PNG; "
         "a block jump at each of the three block boundaries, a brightness step per block, twelve "
         "black slices; N distinct slices, the body from head to toes over N), streamed (no truth "
         "volume in memory; truth = transforms of every slice + mask and labels of every "
-        f"{data['truth_every']}th slice), and `--preset korean` (4368×2912, 0.1 mm). Each stack: "
+        "Kth slice, K as in the score table), and `--preset korean` (4368×2912, 0.1 mm). Each stack: "
         "`vispack-run CONFIG --threads 2` (register → one pass of mask + labels + pack → vdb, raw "
         "files to `.vpk` and `.vdb`) twice, work and output folders removed before each: **cold** "
         "after `sync; echo 3 > /proc/sys/vm/drop_caches`, then **warm** after reading every input "
@@ -103,6 +103,8 @@ def section(data):
         "that of the last progress line; its peak is the largest sample, so a spike shorter than "
         "0.2 s can be missed); stacks deleted after their runs.")
     md.append("")
+    for part in data.get("parts", []):
+        md.append(f"Part of these results comes from an earlier invocation: {part}\n")
     rows = []
     for s in stacks:
         for mode in ("cold", "warm"):
