@@ -70,8 +70,8 @@ def plot(stacks, img):
 
 
 def titled(text, header, rows):
-    """A paragraph and the table under it."""
-    return [text + "\n", table(header, rows)]
+    """A paragraph (if any) and the table under it."""
+    return ([text + "\n"] if text else []) + [table(header, rows)]
 
 
 def section(data):
@@ -198,8 +198,12 @@ def targets(stacks, not_run=None):
         rows.append(["… within 10 % of the 128-slice figure", f"{c1871:.3f} / {c128:.3f} = {ratio:.2f}×",
                      "met" if abs(ratio - 1) <= 0.10 else "**not met**"])
         wall = w1871["time_v"]["wall_s"]
-        rows.append([f"wall ≤ 6 min, two threads, warm ({at} slices)", f"{wall:.0f} s (load {mean(w1871['load_samples']):.1f})",
-                     "met" if wall <= 360 else "**not met**"])
+        idle = w1871["time_v"]["cpu_s"] / 2
+        rows.append([f"wall ≤ 6 min, two threads, warm ({at} slices)",
+                     f"{wall:.0f} s at load {mean(w1871['load_samples']):.1f}; CPU-s / 2 = {idle:.0f} s "
+                     "(two idle cores, if it kept both busy)",
+                     ("met" if wall <= 360 else "**not met**") + f" ({'met' if idle <= 360 else 'not met'} "
+                     "on two idle cores)"])
         cold = run_of(full, "cold")
         if cold:
             extra = cold["time_v"]["wall_s"] - wall
@@ -207,7 +211,8 @@ def targets(stacks, not_run=None):
             rows.append([f"cold run's extra time accounted for by the bytes read ({at})",
                          f"{extra:+.0f} s for {read / 1e9:.1f} GB read from storage "
                          f"({read / 1e6 / max(extra, 1e-9):.0f} MB/s if all of it)" if extra > 0 else
-                         f"{extra:+.0f} s for {read / 1e9:.1f} GB read", "see text"])
+                         f"{extra:+.0f} s for {read / 1e9:.1f} GB read",
+                         "not attributable: the load differed more between the runs"])
         rss = w1871["time_v"]["peak_rss_mib"] / w128["time_v"]["peak_rss_mib"]
         rows.append([f"peak RSS {at} / 128 ≤ 1.25×", f"{w1871['time_v']['peak_rss_mib']:,.0f} / "
                      f"{w128['time_v']['peak_rss_mib']:,.0f} MiB = {rss:.2f}×", "met" if rss <= 1.25 else "**not met**"])
@@ -254,8 +259,8 @@ def projection(stacks):
         rows.append([what, f"{n:,}", f"{cps_ * n / 3600:.2f}", f"{wall_ps_ * n / 60:.0f}",
                      f"{in_b * n / 1e9:.0f}", f"{out_b * n / 1e9:.0f}", f"{rss:,.0f}"])
 
-    row(f"male-shaped stack (measured, {top['slices']})", top["slices"], cps, wall_ps, in_bps, out_bps, rb)
-    row("VH female, 2048×1216", FEMALE_SLICES, cps, wall_ps, in_bps, out_bps,
+    row(f"male-shaped stack (measured, {top['slices']})", top["slices"], cps, cps / 2, in_bps, out_bps, rb)
+    row("VH female, 2048×1216", FEMALE_SLICES, cps, cps / 2, in_bps, out_bps,
         rb + slope * (FEMALE_SLICES - top["slices"]))
     k = next((s for s in stacks if s["preset"] == "korean" and run_of(s, "warm")), None)
     if k:
@@ -264,10 +269,14 @@ def projection(stacks):
         kout = (kw["bytes"]["vpk"] + (kw["bytes"]["vdb"] or 0) + kw["bytes"]["work"]) / k["slices"]
         scale = (k["width"] * k["height"]) / (2048 * 1216)
         row(f"Visible Korean whole body, 4368×2912 (assumed {KOREAN_SLICES:,} slices)", KOREAN_SLICES,
-            kw["time_v"]["cpu_s"] / k["slices"], kw["time_v"]["wall_s"] / k["slices"], kin, kout,
+            kw["time_v"]["cpu_s"] / k["slices"], kw["time_v"]["cpu_s"] / k["slices"] / 2, kin, kout,
             kw["time_v"]["peak_rss_mib"] + slope * scale * (KOREAN_SLICES - k["slices"]))
-    md.append(table(["stack", "slices", "CPU hours", "wall min on this machine (2 threads)",
-                     "input GB", "output + work GB", "peak RSS MiB (projected)"], rows))
+    md += titled("", ["stack", "slices", "CPU hours", "wall min on two idle cores (CPU / 2)",
+                      "input GB", "output + work GB", "peak RSS MiB (projected)"], rows)
+    md.append("The peak grows with the stack because the OpenVDB export holds its whole level in "
+              "memory (the vdb stage is the peak in every run above); past `vdb.max_memory_mb` "
+              "(8 GB by default) it exports a coarser level instead, so the projected peaks above that "
+              "are what level 0 would need, not what a default run would reach.\n")
     per_slice_1 = SLURM["register_s"] + SLURM["slices_pack_s"]
     crow = []
     for workers in (1, 4, 16):
