@@ -6,6 +6,8 @@
 #   --no-report  measure only; docs/ is not touched (scripts/test.sh runs --quick --no-report)
 #   --build DIR  build folder (default build/, or $VISPACK_BENCH_BUILD)
 #   --no-build   use the executables already in DIR/bin (skip scripts/build.sh)
+#   --full-length  instead of the report: scripts/bench/full_length.sh --report (the whole male at
+#                full length: about 45 minutes and 25 GB of disk; its own options after it)
 #   --require-clean  refuse to run from a tree that differs from its commit (git status: modified,
 #                staged or untracked files, the report's own outputs left out); without it a dirty
 #                tree is recorded and the report is marked "DIRTY TREE" at the top
@@ -26,7 +28,8 @@ while [[ $# -gt 0 ]]; do
     --no-build) do_build=0 ;;
     --build) build=$(realpath -m "$2"); shift ;;
     --require-clean) require_clean=1 ;;
-    -h|--help) sed -n '2,18p' "$0"; exit 0 ;;
+    --full-length) shift; exec "$root/scripts/bench/full_length.sh" --build "$build" --report "$@" ;;
+    -h|--help) sed -n '2,20p' "$0"; exit 0 ;;
     *) echo "bench.sh: unknown option $1" >&2; exit 2 ;;
   esac
   shift

@@ -40,6 +40,7 @@ constexpr double kGainRange = 0.05;              // brightness gain 1 ± 5 %
 constexpr double kDriftPx = 0.3;                 // random-walk step σ, pixels
 constexpr double kDriftDeg = 0.05;               // random-walk step σ, degrees
 constexpr double kSystematicDegPerSlice = 0.02;  // DriftModel::kRotation
+constexpr double kBlockGainRange = 0.08;         // --blocks: brightness step per block, 1 ± 8 %
 
 struct SliceTruth {
   double dx = 0, dy = 0, rot = 0, gain = 1;
@@ -52,7 +53,10 @@ struct Plan {
   PhantomPreset preset;
   int slices = 0;
   bool defects = false;
-  int jump = -1, black = -1, duplicate = -1;
+  int jump = -1, black = -1, duplicate = -1;  // the first jump, the first black slice
+  std::vector<int> jumps, blacks;             // every block jump, every black slice
+  std::vector<int> block_starts;              // --blocks: the first slice of each block
+  std::vector<double> block_gains;            // --blocks: each block's brightness factor
   std::vector<SliceTruth> truth;
   Anatomy anatomy;
   // CT → output grid: the output grid IS the CT frame at the colour resolution
@@ -117,8 +121,51 @@ void plan_preset(const PhantomOptions& options, Plan& plan) {
   }
 }
 
+// The block jumps: one at N/2, or with --blocks B one at each of the B − 1 boundaries of B blocks
+// of equal length, each block with its own brightness factor (drawn from a generator of its own,
+// so the walk and the per-slice gains stay those of a folder without blocks).
+void plan_blocks(const PhantomOptions& options, Plan& plan) {
+  const int n = plan.slices, b = options.blocks;
+  if (b == 0 || b == 1) {
+    if (options.jump) plan.jumps.push_back(n / 2);
+    return;
+  }
+  if (b < 0 || b > 64 || n < 4 * b)
+    throw UsageError(
+        cat("--blocks ", b, ": must be 2..64 and at most slices / 4 (", n, " slices)"));
+  Random gains(options.seed * 0xa0761d6478bd642full + 41);
+  for (int i = 0; i < b; ++i) {
+    plan.block_starts.push_back(int((std::int64_t(i) * n) / b));
+    plan.block_gains.push_back(1.0 + gains.uniform(-kBlockGainRange, kBlockGainRange));
+    if (i > 0 && options.jump) plan.jumps.push_back(plan.block_starts.back());
+  }
+}
+
+// --black-slices C: C black slices at the middles of C equal parts of the stack, each moved on
+// past slice 0, a jump, the duplicate and its source, and the black slices already placed.
+template <class IsJump>
+void plan_black_slices(const PhantomOptions& options, Plan& plan, const IsJump& is_jump) {
+  const int n = plan.slices, c = options.black_slices;
+  if (c < 0 || c > n / 4)
+    throw UsageError(cat("--black-slices ", c, ": must be 0..slices / 4 (", n, " slices)"));
+  for (int i = 0; i < c; ++i) {
+    int k = int(((2 * std::int64_t(i) + 1) * n) / (2 * std::int64_t(c)));
+    auto taken = [&](int j) {
+      return j == 0 || is_jump(j) || j == plan.duplicate || j + 1 == plan.duplicate ||
+             std::find(plan.blacks.begin(), plan.blacks.end(), j) != plan.blacks.end();
+    };
+    int tries = 0;
+    while (taken(k) && tries++ < n)
+      k = (k + 1) % n;
+    if (taken(k)) throw UsageError(cat("--black-slices ", c, ": no room in ", n, " slices"));
+    plan.blacks.push_back(k);
+  }
+  std::sort(plan.blacks.begin(), plan.blacks.end());
+  if (!plan.blacks.empty()) plan.black = plan.blacks.front();
+}
+
 // The slice count (checked, with the truth volumes' memory), the file digits and where the
-// jump and the defects go.
+// jumps and the defects go.
 void plan_slices(const PhantomOptions& options, Plan& plan) {
   const PhantomPreset& p = plan.preset;
   plan.slices = options.slices > 0 ? options.slices : p.slices;
@@ -133,19 +180,29 @@ void plan_slices(const PhantomOptions& options, Plan& plan) {
   }
   // Bytes per voxel of the truth volumes: rgb 3 + ct 2 + mask 1 + labels 2 + seg_labels 2.
   const double volume_bytes = double(p.width) * p.height * n * 10.0;
-  if (volume_bytes > 12e9) {
+  if (options.truth_every < 0 || options.truth_every > 100000)
+    throw UsageError(cat("--truth-every ", options.truth_every, ": must be 0..100000"));
+  if (options.truth_every < 2 && volume_bytes > 12e9) {
     throw UsageError(cat("--slices ", n, ": the truth volumes would need ",
-                         std::llround(volume_bytes / 1e9), " GB of memory; use fewer slices"));
+                         std::llround(volume_bytes / 1e9),
+                         " GB of memory; use fewer slices or --truth-every K (a streamed folder)"));
   }
   plan.digits = std::max(4, int(std::to_string(n - 1).size()));
-  plan.jump = options.jump ? n / 2 : -1;
+  plan_blocks(options, plan);
+  plan.jump = plan.jumps.empty() ? -1 : plan.jumps.front();
+  auto is_jump = [&](int k) {
+    return std::find(plan.jumps.begin(), plan.jumps.end(), k) != plan.jumps.end();
+  };
   if (plan.defects) {
     plan.black = std::max(1, n / 4);
     plan.duplicate = (3 * n) / 4;
-    if (plan.duplicate == plan.jump) ++plan.duplicate;
+    while (is_jump(plan.duplicate))
+      ++plan.duplicate;
     if (plan.duplicate - 1 == plan.black) ++plan.duplicate;
     if (plan.duplicate >= n) throw UsageError("too few slices for the defects");
+    plan.blacks.push_back(plan.black);
   }
+  plan_black_slices(options, plan, is_jump);
 }
 
 // The drift models other than the walk (PhantomOptions::DriftModel) change the walk's steps. They
@@ -221,10 +278,17 @@ void plan_drift(const PhantomOptions& options, const Limits& lim, bool tiny, Pla
   Random rng(options.seed * 0x9e3779b97f4a7c15ull + 17);
   DriftSteps model_steps(options, p.height, n);
   plan.truth.resize(n);
+  auto listed = [](const std::vector<int>& v, int k) {
+    return std::find(v.begin(), v.end(), k) != v.end();
+  };
+  std::size_t block = 0;
   for (int k = 0; k < n; ++k) {
     SliceTruth& s = plan.truth[k];
     s.source = k;
     s.gain = 1.0 + rng.uniform(-kGainRange, kGainRange);
+    while (block + 1 < plan.block_starts.size() && plan.block_starts[block + 1] <= k)
+      ++block;
+    if (!plan.block_gains.empty()) s.gain *= plan.block_gains[block];
     const double drift = options.drift ? 1.0 : 0.0;  // the draws happen either way
     double step_x = drift * rng.normal(kDriftPx), step_y = drift * rng.normal(kDriftPx);
     double step_r = drift * rng.normal(kDriftDeg);
@@ -248,7 +312,7 @@ void plan_drift(const PhantomOptions& options, const Limits& lim, bool tiny, Pla
     s.dx = reflect(prev.dx + step_x, lim.x);
     s.dy = reflect(prev.dy + step_y, lim.y);
     s.rot = reflect(prev.rot + step_r, lim.rot);
-    if (k == plan.jump) {
+    if (listed(plan.jumps, k)) {
       // Try directions around the drawn one until the whole jump fits inside the limits.
       bool placed = false;
       for (int attempt = 0; attempt < 8 && !placed; ++attempt) {
@@ -268,7 +332,7 @@ void plan_drift(const PhantomOptions& options, const Limits& lim, bool tiny, Pla
       if (std::fabs(s.rot - prev.rot) < rot_lo * 0.99) s.rot = prev.rot - jump_r;
       s.jump = true;
     }
-    s.black = k == plan.black;
+    s.black = listed(plan.blacks, k);
   }
 }
 
@@ -332,14 +396,19 @@ PhantomPreset phantom_preset(const std::string& name) {
     p.width = 2048, p.height = 1216, p.slices = 200, p.pixel_mm = 0.33, p.ct_size = 512,
     p.ct_pixel_mm = 1.4, p.defects = false, p.fiducials = false, p.varying_anatomy = true,
     p.limbs = true;
+  } else if (name == "korean") {
+    // The male body on a Visible Korean colour slice (4368×2912, 0.1 mm), CT 1 mm.
+    p.width = 4368, p.height = 2912, p.slices = 64, p.pixel_mm = 0.1, p.ct_size = 481,
+    p.ct_pixel_mm = 1.0, p.defects = false, p.fiducials = false, p.varying_anatomy = true,
+    p.limbs = true;
   } else if (name == "male-small") {
     p.width = 384, p.height = 228, p.slices = 64, p.pixel_mm = 0.33, p.ct_size = 282,
     p.ct_pixel_mm = 0.495, p.defects = false, p.fiducials = false, p.varying_anatomy = true,
     p.limbs = true;
   } else {
     throw UsageError(cat("unknown preset \"", name,
-                         "\" (use tiny, small, medium, vhp, anatomy, anatomy-vhp, male or "
-                         "male-small)"));
+                         "\" (use tiny, small, medium, vhp, anatomy, anatomy-vhp, male, korean "
+                         "or male-small)"));
   }
   p.slice_mm = 1.0;
   return p;
@@ -367,13 +436,13 @@ struct PresetRun {
   PhantomFolder& folder;
   std::string rgb_ext, seg_ext;
   RawLayout raw;
+  std::vector<int> truth_sample;  // a streamed folder's truth slices (truth_every ≥ 2)
 };
 
 // Slice k of the truth volumes on the output grid: no drift, no noise, gain 1.
-void render_truth(const PresetRun& r, int k, const SliceParams& params) {
+void render_truth(const PresetRun& r, const TruthPlanes& truth, const SliceParams& params) {
   const int W = r.plan.preset.width, H = r.plan.preset.height;
   Sample sample;
-  const TruthPlanes truth = r.folder.truth_planes(k);
   for (int y = 0; y < H; ++y) {
     for (int x = 0; x < W; ++x) {
       r.model.eval(params, x, y, 1.0, true, true, sample);
@@ -386,14 +455,13 @@ void render_truth(const PresetRun& r, int k, const SliceParams& params) {
 // Observed RGB and segmentation of slice k, written: the model sampled at q(p) for each observed
 // pixel p, q = c + R(−θ)(p − c − d) (the inverse of p = c + R(θ)(q − c) + d). The IDs the seg
 // slice shows go to truth/seg_labels, pixel for pixel on its own (drifted) grid; 0 on a black
-// slice.
-void render_observed(const PresetRun& r, int k, const SliceParams& params) {
+// slice. A streamed folder keeps no seg_labels (`t_seg` null).
+void render_observed(const PresetRun& r, int k, const SliceParams& params, std::uint16_t* t_seg) {
   const SliceTruth& st = r.plan.truth[k];
   const int W = r.plan.preset.width, H = r.plan.preset.height;
   const double cx = (W - 1) * 0.5, cy = (H - 1) * 0.5;
   cv::Mat rgb(H, W, CV_8UC3, cv::Scalar::all(0));
   cv::Mat seg(H, W, CV_8UC3, cv::Scalar::all(0));
-  auto* t_seg = r.folder.truth_seg_labels(k);
   if (!st.black) {
     Sample sample;
     const SliceParams& src = st.source == k ? params : r.model.slice(st.source);
@@ -411,7 +479,7 @@ void render_observed(const PresetRun& r, int k, const SliceParams& params) {
         for (int c = 0; c < 3; ++c) {
           row[x * 3 + c] = to_u8(sample.rgb[c] * st.gain + kNoiseSigma * gauss[c]);
         }
-        t_seg[std::size_t(y) * W + x] = sample.label;
+        if (t_seg) t_seg[std::size_t(y) * W + x] = sample.label;
         const auto& colour = label_info(sample.label).palette;
         for (int c = 0; c < 3; ++c)
           srow[x * 3 + c] = static_cast<std::uint8_t>(colour[c]);
@@ -470,6 +538,15 @@ void write_preset_transforms(const PresetRun& r) {
     s.jump = st.jump, s.black = st.black, s.duplicate_of = st.duplicate_of, s.gain = st.gain;
     tt.slices.push_back(s);
   }
+  if (!plan.block_starts.empty()) {
+    tt.extra["block_starts"] = plan.block_starts;
+    tt.extra["block_gains"] = plan.block_gains;
+  }
+  if (!r.truth_sample.empty()) {
+    // A streamed folder: the truth of these slices only, in truth/sample/.
+    tt.extra["truth_every"] = r.options.truth_every;
+    tt.extra["truth_sample"] = r.truth_sample;
+  }
   tt.extra["camera_offset"] = {
       {"rotation_deg", plan.cam_rot}, {"dx_px", plan.cam_dx}, {"dy_px", plan.cam_dy}};
   tt.extra["noise_sigma"] = kNoiseSigma;
@@ -511,6 +588,25 @@ void write_preset_config(const PresetRun& r) {
   r.folder.write_config(config);
 }
 
+// What the folder will take on disk, about: the colour slices (raw: exact; PNG: as raw, an upper
+// bound for noisy colour), the CT slices (16-bit PNG, at most 2 bytes a pixel), the segmentation
+// (flat colours: PNG a sixteenth of raw, JPEG a quarter) and the truth (the volumes, or the sampled
+// slices' PNGs at most 3 bytes a pixel).
+std::uint64_t estimate_bytes(const Plan& plan, const PhantomOptions& options) {
+  const PhantomPreset& p = plan.preset;
+  const std::uint64_t plane = std::uint64_t(p.width) * p.height, n = std::uint64_t(plan.slices);
+  const std::uint64_t ct_slices = (n + options.ct_every - 1) / options.ct_every;
+  const std::uint64_t seg_slices = (n + options.seg_every - 1) / options.seg_every;
+  std::uint64_t bytes = n * plane * 3;
+  bytes += ct_slices * std::uint64_t(p.ct_size) * p.ct_size * 2;
+  bytes += seg_slices * plane * 3 / (options.seg_jpeg ? 4 : 16);
+  if (options.truth_every >= 2)
+    bytes += ((n + options.truth_every - 1) / options.truth_every) * plane * 3;
+  else
+    bytes += n * plane * 10;
+  return bytes + 64 * 1024;  // palette, config, transforms
+}
+
 // Leftovers of an earlier run with another preset, slice count or format.
 void remove_leftovers(const PresetRun& r) {
   const PhantomOptions& options = r.options;
@@ -527,6 +623,19 @@ void remove_leftovers(const PresetRun& r) {
   remove_stale(out_dir + "/rgb", std::regex("rgb_[0-9]+\\.(png|raw)"), keep_rgb);
   remove_stale(out_dir + "/seg", std::regex("seg_[0-9]+\\.(png|jpg)"), keep_seg);
   remove_stale(out_dir + "/ct", std::regex("ct_[0-9]+\\.png"), keep_ct);
+  std::vector<std::string> keep_sample;
+  for (int k : r.truth_sample) {
+    keep_sample.push_back(numbered("mask", k, digits, ".png"));
+    keep_sample.push_back(numbered("labels", k, digits, ".png"));
+  }
+  std::error_code ec;
+  if (fs::is_directory(out_dir + "/truth/sample", ec))
+    remove_stale(out_dir + "/truth/sample", std::regex("(mask|labels)_[0-9]+\\.png"), keep_sample);
+  if (!r.truth_sample.empty()) {
+    // A streamed folder holds no truth volume: an earlier folder's would not match its slices.
+    for (const char* v : {"rgb", "ct", "mask", "labels", "seg_labels"})
+      fs::remove(out_dir + "/truth/" + v + ".nrrd", ec);
+  }
 }
 
 }  // namespace
@@ -536,9 +645,13 @@ PhantomSummary make_phantom(const std::string& out_dir, const PhantomOptions& op
   const Plan plan = make_plan(options);
   const PhantomPreset& p = plan.preset;
   const int W = p.width, H = p.height, N = plan.slices;
+  const bool streamed = options.truth_every >= 2;
+  const std::uint64_t needed = estimate_bytes(plan, options);
+  check_free_space(out_dir, needed, options.keep_free_bytes);
   const Model model(W, H, N, options.seed, plan.anatomy);
   const GaussianTable gaussian;
-  PhantomFolder folder(out_dir, W, H, N, {p.pixel_mm, p.pixel_mm, p.slice_mm}, plan.digits);
+  PhantomFolder folder(out_dir, W, H, N, {p.pixel_mm, p.pixel_mm, p.slice_mm}, plan.digits,
+                       !streamed);
   PresetRun run{plan,
                 options,
                 model,
@@ -546,16 +659,34 @@ PhantomSummary make_phantom(const std::string& out_dir, const PhantomOptions& op
                 folder,
                 options.rgb_raw ? ".raw" : ".png",
                 options.seg_jpeg ? ".jpg" : ".png",
-                RawLayout{}};
+                RawLayout{},
+                {}};
   run.raw.width = W, run.raw.height = H, run.raw.channels = 3, run.raw.planar = true;
   run.raw.bits = 8;
+  if (streamed) {
+    for (int k = 0; k < N; k += options.truth_every)
+      run.truth_sample.push_back(k);
+  }
 
   Progress progress("vispack-phantom", N, "slices", options.quiet);
   parallel_for(N, resolve_threads(options.threads), [&](std::int64_t kk) {
     const int k = static_cast<int>(kk);
     const SliceParams params = model.slice(k);
-    render_truth(run, k, params);
-    render_observed(run, k, params);
+    if (!streamed) {
+      render_truth(run, folder.truth_planes(k), params);
+      render_observed(run, k, params, folder.truth_seg_labels(k));
+    } else {
+      // A streamed folder holds one slice's truth at a time, for the sampled slices only.
+      if (k % options.truth_every == 0) {
+        const std::size_t plane = std::size_t(W) * H;
+        std::vector<std::uint8_t> rgb(plane * 3), mask(plane);
+        std::vector<std::int16_t> ct(plane);
+        std::vector<std::uint16_t> labels(plane);
+        render_truth(run, TruthPlanes{rgb.data(), ct.data(), mask.data(), labels.data()}, params);
+        folder.write_truth_sample(k, mask.data(), labels.data());
+      }
+      render_observed(run, k, params, nullptr);
+    }
     render_ct(run, k, params);
     progress.advance();
   });
@@ -578,6 +709,10 @@ PhantomSummary make_phantom(const std::string& out_dir, const PhantomOptions& op
   summary.jump_slice = plan.jump;
   summary.black_slice = plan.black;
   summary.duplicate_slice = plan.duplicate;
+  summary.jump_slices = plan.jumps;
+  summary.black_slices = plan.blacks;
+  summary.truth_sample = run.truth_sample;
+  summary.estimated_bytes = needed;
   summary.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   return summary;
 }

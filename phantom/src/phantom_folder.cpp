@@ -8,6 +8,7 @@
 #include <nlohmann/json.hpp>
 
 #include "vispack/common/atomic_file.h"
+#include "vispack/common/error.h"
 #include "vispack/pipeline/imaging/slice_io.h"
 
 namespace vispack::phantom::detail {
@@ -24,15 +25,41 @@ int file_digits(int slices) {
   return std::max(4, int(std::to_string(slices - 1).size()));
 }
 
+void check_free_space(const std::string& dir, std::uint64_t needed_bytes,
+                      std::uint64_t keep_free_bytes) {
+  // The folder may not exist yet: ask about its nearest existing parent.
+  fs::path probe = fs::absolute(dir).lexically_normal();
+  std::error_code ec;
+  while (!fs::exists(probe, ec) && probe.has_parent_path() && probe != probe.parent_path())
+    probe = probe.parent_path();
+  const fs::space_info space = fs::space(probe, ec);
+  if (ec) throw IoError(cat(probe.string(), ": cannot read the free space: ", ec.message()));
+  const std::uint64_t free_bytes = space.available;
+  if (free_bytes < needed_bytes || free_bytes - needed_bytes < keep_free_bytes) {
+    throw IoError(cat(dir, ": needs about ", needed_bytes, " bytes (", needed_bytes / 1000000,
+                      " MB)",
+                      keep_free_bytes ? cat(" and ", keep_free_bytes, " bytes kept free") : "",
+                      " but the file system of ", probe.string(), " has ", free_bytes, " bytes (",
+                      free_bytes / 1000000, " MB) free; free space or write fewer slices"));
+  }
+}
+
 PhantomFolder::PhantomFolder(std::string out_dir, int width, int height, int slices,
-                             const std::array<double, 3>& spacing_mm, int digits)
-    : out_dir_(std::move(out_dir)), digits_(digits), plane_(std::size_t(width) * height) {
+                             const std::array<double, 3>& spacing_mm, int digits,
+                             bool truth_volumes)
+    : out_dir_(std::move(out_dir)),
+      width_(width),
+      height_(height),
+      digits_(digits),
+      truth_volumes_(truth_volumes),
+      plane_(std::size_t(width) * height) {
   for (const char* d : {"/rgb", "/ct", "/seg", "/truth"})
     make_directories(out_dir_ + d);
+  if (!truth_volumes_) make_directories(out_dir_ + "/truth/sample");
   auto init = [&](NrrdVolume& v, NrrdType type, int components) {
     v.type = type;
     v.components = components;
-    v.dims = {width, height, slices};
+    v.dims = {width, height, truth_volumes ? slices : 0};
     v.spacing_mm = spacing_mm;
     v.data.assign(v.byte_size(), 0);
   };
@@ -82,12 +109,25 @@ void PhantomFolder::write_ct(int number, const cv::Mat& ct16) const {
 }
 
 void PhantomFolder::write_truth_volumes() const {
+  if (!truth_volumes_) return;
   const std::string truth = out_dir_ + "/truth";
   write_nrrd(truth + "/rgb.nrrd", rgb_);
   write_nrrd(truth + "/ct.nrrd", ct_);
   write_nrrd(truth + "/mask.nrrd", mask_);
   write_nrrd(truth + "/labels.nrrd", labels_);
   write_nrrd(truth + "/seg_labels.nrrd", seg_labels_);
+}
+
+void PhantomFolder::write_truth_sample(int k, const std::uint8_t* mask,
+                                       const std::uint16_t* labels) const {
+  cv::Mat m(height_, width_, CV_8UC1), l(height_, width_, CV_16UC1);
+  for (std::size_t i = 0; i < plane_; ++i) {
+    m.data[i] = mask[i] ? 255 : 0;
+    reinterpret_cast<std::uint16_t*>(l.data)[i] = labels[i];
+  }
+  const std::string sample = out_dir_ + "/truth/sample/";
+  pipeline::write_image(sample + numbered("mask", k, digits_, ".png"), m);
+  pipeline::write_image(sample + numbered("labels", k, digits_, ".png"), l);
 }
 
 void PhantomFolder::write_truth_transforms(const TruthTransforms& t) const {

@@ -56,12 +56,19 @@ struct TruthPlanes {
   }
 };
 
+// Throws IoError naming `dir` (or its nearest existing parent), the bytes needed and the bytes
+// free when the file system holding it has fewer than needed_bytes + keep_free_bytes free.
+void check_free_space(const std::string& dir, std::uint64_t needed_bytes,
+                      std::uint64_t keep_free_bytes);
+
 class PhantomFolder {
  public:
   // Creates rgb/, ct/, seg/ and truth/ under `out_dir` and the truth volumes (zeros) of
-  // width × height × slices voxels at `spacing_mm`; file numbers have `digits` digits.
+  // width × height × slices voxels at `spacing_mm`; file numbers have `digits` digits. Without
+  // `truth_volumes` (a streamed folder) no volume is held: the truth_* accessors must not be
+  // called, write_truth_volumes writes nothing and write_truth_sample writes truth/sample/.
   PhantomFolder(std::string out_dir, int width, int height, int slices,
-                const std::array<double, 3>& spacing_mm, int digits);
+                const std::array<double, 3>& spacing_mm, int digits, bool truth_volumes = true);
 
   int digits() const { return digits_; }
   const std::string& dir() const { return out_dir_; }
@@ -86,8 +93,11 @@ class PhantomFolder {
                  int jpeg_quality = 90) const;
   void write_ct(int number, const cv::Mat& ct16) const;
 
-  // truth/rgb.nrrd, ct.nrrd, mask.nrrd, labels.nrrd, seg_labels.nrrd.
+  // truth/rgb.nrrd, ct.nrrd, mask.nrrd, labels.nrrd, seg_labels.nrrd (none in a streamed folder).
   void write_truth_volumes() const;
+  // A streamed folder's truth of slice k: truth/sample/mask_<k>.png (0/255 from the 0/1 `mask`)
+  // and labels_<k>.png (16-bit IDs), width × height each.
+  void write_truth_sample(int k, const std::uint8_t* mask, const std::uint16_t* labels) const;
   // truth/transforms.json (truth_json.h: the phantom's own writer).
   void write_truth_transforms(const TruthTransforms& t) const;
   // palette.json: {"labels": [{"id", "name", "colour"}, ...]}.
@@ -105,7 +115,9 @@ class PhantomFolder {
 
  private:
   std::string out_dir_;
+  int width_, height_;
   int digits_;
+  bool truth_volumes_;
   NrrdVolume rgb_, ct_, mask_, labels_, seg_labels_;
   std::size_t plane_;
 };

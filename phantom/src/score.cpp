@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <limits>
 
@@ -108,6 +109,16 @@ TransformsFile read_transforms_file(const std::string& path) {
     if (s.contains("duplicate_of") && s["duplicate_of"].is_number_integer())
       out.duplicate_of = s["duplicate_of"].get<int>();
     t.slices.push_back(out);
+  }
+  if (j.contains("truth_sample")) {
+    if (!j["truth_sample"].is_array())
+      throw FormatError(cat(path, ": \"truth_sample\" is no array"));
+    for (const json& k : j["truth_sample"]) {
+      if (!k.is_number_integer() || k.get<long long>() < 0 ||
+          k.get<long long>() >= static_cast<long long>(t.slices.size()))
+        throw FormatError(cat(path, ": \"truth_sample\" holds ", k.dump(), ", not a slice index"));
+      t.truth_sample.push_back(k.get<int>());
+    }
   }
   return t;
 }
@@ -249,6 +260,39 @@ LabelScore score_labels(const NrrdVolume& truth, const std::vector<cv::Mat>& est
   return l;
 }
 
+namespace {
+// A streamed phantom's truth/sample/<prefix>_NNNN.png of the `sample` slices as one volume in
+// that order: "mask" as uint8 0/1, "labels" as uint16.
+NrrdVolume read_sample_volume(const std::string& truth_dir, const std::string& prefix,
+                              const std::vector<int>& sample, const TransformsFile& truth) {
+  const bool mask = prefix == "mask";
+  NrrdVolume v;
+  v.type = mask ? NrrdType::kUint8 : NrrdType::kUint16;
+  v.components = 1;
+  v.dims = {truth.width, truth.height, int(sample.size())};
+  v.data.assign(v.byte_size(), 0);
+  const std::size_t plane = std::size_t(truth.width) * truth.height;
+  for (std::size_t j = 0; j < sample.size(); ++j) {
+    const std::string path = index_name(truth_dir + "/sample", prefix, sample[j]);
+    const cv::Mat image = pipeline::read_slice(path);
+    if (image.cols != truth.width || image.rows != truth.height || image.channels() != 1 ||
+        image.depth() != (mask ? CV_8U : CV_16U))
+      throw FormatError(cat(path, ": expected ", truth.width, "x", truth.height,
+                            mask ? " 8-bit" : " 16-bit", " grey, got ", image.cols, "x",
+                            image.rows));
+    const cv::Mat c = image.isContinuous() ? image : image.clone();
+    if (mask) {
+      std::uint8_t* out = v.as<std::uint8_t>() + plane * j;
+      for (std::size_t i = 0; i < plane; ++i)
+        out[i] = c.data[i] ? 1 : 0;
+    } else {
+      std::memcpy(v.as<std::uint16_t>() + plane * j, c.data, plane * 2);
+    }
+  }
+  return v;
+}
+}  // namespace
+
 Score score_work(const std::string& truth_dir, const std::string& work_dir) {
   Score s;
   const TransformsFile truth = read_transforms_file(truth_dir + "/transforms.json");
@@ -257,27 +301,39 @@ Score score_work(const std::string& truth_dir, const std::string& work_dir) {
   s.drift = score_drift(truth, est);
   s.jumps = score_jumps(truth, est);
   const int N = int(truth.slices.size());
+  // The slices scored for mask, labels and the drift over the body: every one, or a streamed
+  // phantom's sample; truth volumes hold exactly these, in this order.
+  s.truth_sample = truth.truth_sample;
+  const bool sampled = !s.truth_sample.empty();
+  std::vector<int> scored(sampled ? s.truth_sample : std::vector<int>{});
+  if (!sampled) {
+    for (int k = 0; k < N; ++k)
+      scored.push_back(k);
+  }
   auto read_stack = [&](const std::string& dir, const std::string& prefix,
                         std::vector<cv::Mat>& out) {
     std::error_code ec;
     if (!fs::is_directory(dir, ec)) return false;
-    for (int k = 0; k < N; ++k)
+    for (int k : scored)
       if (!fs::is_regular_file(index_name(dir, prefix, k), ec)) return false;
-    for (int k = 0; k < N; ++k)
+    for (int k : scored)
       out.push_back(pipeline::read_slice(index_name(dir, prefix, k)));
     return true;
   };
-  const NrrdVolume truth_mask = read_nrrd(truth_dir + "/mask.nrrd");
+  const NrrdVolume truth_mask = sampled
+                                    ? read_sample_volume(truth_dir, "mask", s.truth_sample, truth)
+                                    : read_nrrd(truth_dir + "/mask.nrrd");
   {
     const std::size_t plane = std::size_t(truth_mask.dims[0]) * truth_mask.dims[1];
     double sum2 = 0, sum2_over = 0;
     s.drift.body_max_px = 0;
     s.drift.over_body_max_px = 0;
-    std::vector<double> over_body(std::size_t(N), kNaN);
-    for (int k = 0; k < N && k < truth_mask.dims[2]; ++k) {
+    std::vector<double> over_body(scored.size(), kNaN);
+    for (int j = 0; j < int(scored.size()) && j < truth_mask.dims[2]; ++j) {
+      const int k = scored[std::size_t(j)];
       const double e = s.drift.error_px[std::size_t(k)];
       if (!std::isfinite(e)) continue;
-      const std::uint8_t* m = truth_mask.as<std::uint8_t>() + plane * std::size_t(k);
+      const std::uint8_t* m = truth_mask.as<std::uint8_t>() + plane * std::size_t(j);
       const auto body =
           std::size_t(std::count_if(m, m + plane, [](std::uint8_t v) { return v != 0; }));
       if (body > 0) {
@@ -291,7 +347,7 @@ Score score_work(const std::string& truth_dir, const std::string& work_dir) {
         const double b =
             transform_error_over_px(est.slices[std::size_t(k)].t, truth.slices[std::size_t(k)].t,
                                     truth.width, truth.height, hull);
-        over_body[std::size_t(k)] = b;
+        over_body[std::size_t(j)] = b;
         sum2_over += b * b, ++s.drift.over_body_slices;
         if (b > s.drift.over_body_max_px) {
           s.drift.over_body_max_px = b;
@@ -313,14 +369,21 @@ Score score_work(const std::string& truth_dir, const std::string& work_dir) {
   if (read_stack(work_dir + "/mask", "mask", masks)) {
     s.has_mask = true;
     s.mask = score_masks(truth_mask, masks);
+    if (sampled && s.mask.min_body_slice >= 0)
+      s.mask.min_body_slice = scored[std::size_t(s.mask.min_body_slice)];
   }
   if (read_stack(work_dir + "/labels", "labels", labels)) {
     s.has_labels = true;
-    std::vector<int> excluded;
-    for (int k = 0; k < N; ++k)
-      if (truth.slices[std::size_t(k)].black || truth.slices[std::size_t(k)].duplicate_of >= 0)
-        excluded.push_back(k);
-    s.labels = score_labels(read_nrrd(truth_dir + "/labels.nrrd"), labels, excluded);
+    std::vector<int> excluded;  // positions in `scored`
+    for (int j = 0; j < int(scored.size()); ++j) {
+      const auto& t = truth.slices[std::size_t(scored[std::size_t(j)])];
+      if (t.black || t.duplicate_of >= 0) excluded.push_back(j);
+    }
+    s.labels = score_labels(sampled ? read_sample_volume(truth_dir, "labels", s.truth_sample, truth)
+                                    : read_nrrd(truth_dir + "/labels.nrrd"),
+                            labels, excluded);
+    if (sampled && s.labels.worst_slice >= 0)
+      s.labels.worst_slice = scored[std::size_t(s.labels.worst_slice)];
   }
   return s;
 }
@@ -328,6 +391,7 @@ Score score_work(const std::string& truth_dir, const std::string& work_dir) {
 json to_json(const Score& s) {
   json out;
   out["truth_frame"] = s.truth_frame;
+  if (!s.truth_sample.empty()) out["truth_sample"] = s.truth_sample;
   out["estimate_frame"] = s.estimate_frame;
   out["drift"] = {{"rms_px", s.drift.rms_px},
                   {"max_px", s.drift.max_px},

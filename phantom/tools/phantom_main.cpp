@@ -20,8 +20,9 @@ namespace {
 // The command line as given (each option unset when absent).
 struct PhantomArgs {
   std::optional<std::string> out, preset, from_ct, drift_model, jump_px;
-  std::optional<long long> first, ct_every, seg_every, margin, seed, slices, threads;
-  std::optional<double> ct_scale;
+  std::optional<long long> first, ct_every, seg_every, margin, seed, slices, threads, blocks,
+      black_slices, truth_every;
+  std::optional<double> ct_scale, keep_free_gb;
   bool rgb_raw = false, seg_jpeg = false, defects = false, no_defects = false, fiducials = false,
        no_fiducials = false, no_drift = false, no_jump = false, quiet = false;
   // Checked and clamped: the seed (default 1), the slice count (0: the default), the threads.
@@ -37,7 +38,8 @@ PhantomArgs parse(vispack::Args& args) {
       "[--rgb-raw] [--seg-jpeg] [--defects|--no-defects] [--fiducials|--no-fiducials] "
       "[--ct-every N] [--seg-every N] [--no-drift] [--drift MODEL] [--no-jump] [--jump-px "
       "MIN:MAX] "
-      "[--threads N] [--quiet]",
+      "[--blocks N] [--black-slices N] [--truth-every K] [--keep-free-gb GB] [--threads N] "
+      "[--quiet]",
       "Writes a synthetic Visible-Human-style slice folder (rgb/, ct/, seg/, palette.json,\n"
       "config.json) with ground truth in truth/ (NRRD volumes and transforms.json).\n"
       "--from-ct synthesises the colour slices from a real CT (a .nrrd, a config.json, or a\n"
@@ -47,7 +49,8 @@ PhantomArgs parse(vispack::Args& args) {
   a.out = args.option("--out", "DIR", "output folder (created if missing)");
   a.preset = args.option(
       "--preset", "NAME",
-      "tiny | small | medium | vhp | anatomy | anatomy-vhp | male | male-small (default small)");
+      "tiny | small | medium | vhp | anatomy | anatomy-vhp | male | korean | male-small\n"
+      "      (default small)");
   a.from_ct = args.option("--from-ct", "CT", "synthesise from this real CT volume");
   a.first = args.option_int("--first", "K", "--from-ct: first CT slice (default: centred)");
   a.ct_scale = args.option_double(
@@ -78,6 +81,19 @@ PhantomArgs parse(vispack::Args& args) {
   a.no_jump = args.flag("--no-jump", "no block jump");
   a.jump_px = args.option("--jump-px", "MIN:MAX",
                           "presets: block jump magnitude in px (default 10:15; 7:9 tiny)");
+  a.blocks = args.option_int(
+      "--blocks", "N",
+      "presets: N blocks of equal length, a block jump at each boundary and a brightness\n"
+      "      step per block (the VH male: 4)");
+  a.black_slices =
+      args.option_int("--black-slices", "N", "presets: N black slices spread over the stack");
+  a.truth_every = args.option_int(
+      "--truth-every", "K",
+      "presets: a streamed folder: no truth volumes, only truth/sample/ mask and labels PNGs\n"
+      "      of every Kth slice (memory independent of the slice count)");
+  a.keep_free_gb = args.option_double(
+      "--keep-free-gb", "GB",
+      "fail before writing when the folder would leave less than GB free (default 0)");
   a.threads =
       args.option_int("--threads", "N", "threads in all, this one included (default: all cores)");
   a.quiet = args.flag("--quiet", "no progress output");
@@ -104,6 +120,9 @@ int run_from_ct(const PhantomArgs& a) {
   if (a.rgb_raw || a.seg_jpeg || a.defects || a.fiducials)
     throw vispack::UsageError(
         "--rgb-raw, --seg-jpeg, --defects and --fiducials apply to the presets only");
+  if (a.blocks || a.black_slices || a.truth_every || a.keep_free_gb)
+    throw vispack::UsageError(
+        "--blocks, --black-slices, --truth-every and --keep-free-gb apply to the presets only");
   vispack::phantom::FromCtOptions o;
   o.seed = a.seed_value;
   o.slices = a.slice_count;
@@ -164,6 +183,17 @@ int run_preset(const PhantomArgs& a) {
   if (a.no_jump) options.jump = false;
   if (a.drift_model) options.drift_model = vispack::phantom::parse_drift_model(*a.drift_model);
   if (a.jump_px) std::tie(options.jump_px_min, options.jump_px_max) = parse_jump_px(*a.jump_px);
+  auto clamp_int = [](long long v) {
+    return static_cast<int>(std::clamp<long long>(v, -1, 1 << 30));
+  };
+  if (a.blocks) options.blocks = clamp_int(*a.blocks);
+  if (a.black_slices) options.black_slices = clamp_int(*a.black_slices);
+  if (a.truth_every) options.truth_every = clamp_int(*a.truth_every);
+  if (a.keep_free_gb) {
+    if (!(*a.keep_free_gb >= 0 && *a.keep_free_gb < 1e9))
+      throw vispack::UsageError("--keep-free-gb must be a number of GB, 0 or more");
+    options.keep_free_bytes = static_cast<std::uint64_t>(*a.keep_free_gb * 1e9);
+  }
   options.threads = a.thread_count;
   options.quiet = a.quiet;
   const auto summary = vispack::phantom::make_phantom(*a.out, options);
@@ -173,6 +203,11 @@ int run_preset(const PhantomArgs& a) {
     std::printf(", black slice %d, duplicate slice %d", summary.black_slice,
                 summary.duplicate_slice);
   }
+  if (summary.jump_slices.size() > 1) std::printf(", %zu block jumps", summary.jump_slices.size());
+  if (summary.black_slices.size() > 1)
+    std::printf(", %zu black slices", summary.black_slices.size());
+  if (!summary.truth_sample.empty())
+    std::printf(", truth of %zu slices in truth/sample", summary.truth_sample.size());
   std::printf(" (%.2f s)\n", summary.seconds);
   return 0;
 }

@@ -26,6 +26,7 @@
 #include <cstdint>
 #include <optional>
 #include <string>
+#include <vector>
 
 namespace vispack::phantom {
 
@@ -49,7 +50,8 @@ struct PhantomPreset {
 // does not flatter registration: the outline's centre moves steadily by 0.3 × 0.12 of H/2 over
 // the stack, the body tapers to nothing at both ends (size ∝ sin(π t)^0.3), organs wander,
 // grow and vanish, and the texture is drawn afresh for every slice); male 2048×1216×200 (CT
-// 512², 1.4 mm) and male-small 384×228×64 (CT 1.5× coarser): a whole body from head to toes
+// 512², 1.4 mm), korean 4368×2912×64 (the Visible Korean's colour slice, 0.1 mm; CT 481², 1 mm)
+// and male-small 384×228×64 (CT 1.5× coarser): a whole body from head to toes
 // (docs/ARCHITECTURE.md, 'The body mask: every part is body'), several parts in most slices: the
 // head tapering from nothing, arms beside the torso (gaps 2–40 px at 1216 px height, the right arm
 // resting on the table in part of the stack), the pelvis parting into two legs of the same size,
@@ -91,15 +93,36 @@ struct PhantomOptions {
   int seg_every = 1;   // 1..1000
   int threads = 0;     // 0 = all cores (parallel over slices; output independent of it)
   bool quiet = false;  // no progress lines on stderr
+  // The male's artefacts as NLM ships it (docs/ARCHITECTURE.md, 'A stack at full length'):
+  // `blocks` ≥ 2 cuts the stack into that many blocks of equal length with a block jump at each
+  // of the blocks − 1 boundaries (instead of the one jump at N/2) and a brightness step per block
+  // (block gain 1 ± 8 %, times the per-slice gain); `black_slices` black slices spread over the
+  // stack, never slice 0 nor a jump. 0 and 0: one jump at N/2, no step, as before.
+  int blocks = 0;        // 0 or 2..64, at most slices / 4
+  int black_slices = 0;  // 0..slices / 4
+  // 0 or 1: the truth volumes of the whole stack (truth/*.nrrd, 10 bytes a voxel, built in memory:
+  // at most 12 GB). K ≥ 2, a streamed folder for stacks at full length: no truth volume is
+  // held; truth/sample/mask_NNNN.png (0/255) and labels_NNNN.png (16-bit IDs) are written for
+  // every K-th slice (0, K, 2K, ...) and truth/transforms.json lists them ("truth_sample");
+  // vispack-score scores the masks and labels on those slices (score.h).
+  int truth_every = 0;
+  // Bytes the file system must keep free after the folder is written: make_phantom estimates the
+  // bytes it will write, checks std::filesystem::space first and throws before writing anything
+  // when they do not fit (the message names the folder, the bytes needed and the bytes free).
+  std::uint64_t keep_free_bytes = 0;
 };
 
 struct PhantomSummary {
   int width = 0, height = 0, slices = 0;
   int ct_size = 0;
-  int jump_slice = -1;       // index of the slice where the block jump happens
-  int black_slice = -1;      // -1 when defects are off
-  int duplicate_slice = -1;  // an exact copy of slice duplicate_slice − 1; -1 when off
-  double seconds = 0.0;      // wall time of the generation
+  int jump_slice = -1;                // index of the slice where the block jump happens
+  int black_slice = -1;               // -1 when defects are off
+  int duplicate_slice = -1;           // an exact copy of slice duplicate_slice − 1; -1 when off
+  std::vector<int> jump_slices;       // every block jump (jump_slice is the first; empty: none)
+  std::vector<int> black_slices;      // every black slice (black_slice is the first)
+  std::vector<int> truth_sample;      // truth_every ≥ 2: the slices of truth/sample/
+  std::uint64_t estimated_bytes = 0;  // what the free-space check counted
+  double seconds = 0.0;               // wall time of the generation
 };
 
 // Writes the phantom folder under `out_dir` (created if missing): rgb/, ct/, seg/, palette.json,
@@ -107,7 +130,8 @@ struct PhantomSummary {
 // files of an earlier run in rgb/, ct/ and seg/ that match the phantom's own name patterns but
 // are not part of this run are removed, so the folder always holds exactly one phantom.
 // Throws UsageError for bad options (unknown preset, slice count out of range, defects with
-// fewer than 6 slices), IoError when a file cannot be written.
+// fewer than 6 slices, blocks or black slices that do not fit), IoError when a file cannot be
+// written or the file system lacks the space (keep_free_bytes), before the first slice.
 PhantomSummary make_phantom(const std::string& out_dir, const PhantomOptions& options);
 
 // "walk" | "heavy" | "rotation" | "bowed" (the command line's --drift); throws UsageError naming

@@ -46,6 +46,9 @@ struct TransformsFile {
     int duplicate_of = -1;
   };
   std::vector<Slice> slices;
+  // A streamed phantom's truth (phantom.h truth_every): the slices whose mask and labels truth
+  // lie in truth/sample/ ("truth_sample"); empty when the file has none.
+  std::vector<int> truth_sample;
 };
 // Throws IoError (unreadable) or FormatError naming the file and key.
 TransformsFile read_transforms_file(const std::string& path);
@@ -121,10 +124,15 @@ struct Score {
   bool has_mask = false, has_labels = false;
   MaskScore mask;
   LabelScore labels;
+  // A streamed phantom (truth/transforms.json lists "truth_sample"): the slices the mask and label
+  // scores and the drift over the body cover; their per-slice vectors follow this list. Empty:
+  // every slice (truth/mask.nrrd, labels.nrrd).
+  std::vector<int> truth_sample;
 };
 // Everything that the work folder holds: drift and jumps always (register/transforms.json is
-// required; also the drift over slices with ≥ 1 % body, from truth/mask.nrrd), mask and labels
-// when their folders hold one image per slice.
+// required; also the drift over slices with ≥ 1 % body, from truth/mask.nrrd or, for a streamed
+// phantom, truth/sample/mask_NNNN.png), mask and labels when their folders hold an image for
+// every slice scored.
 Score score_work(const std::string& truth_dir, const std::string& work_dir);
 
 // JSON of a score (NaN written as null), for reports and vispack-score --json.
