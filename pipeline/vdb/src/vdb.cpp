@@ -381,7 +381,7 @@ WrittenPart write_level_part(const Config& config, const format::Reader& reader,
                              const VdbLevelChoice& choice, const ExportChannels& channels,
                              const LevelPart& part, bool as_part, SliceRange slices,
                              const std::string& output, int threads,
-                             openvdb::GridPtrVec* names_out) {
+                             std::vector<std::string>* names_out) {
   const format::LevelInfo& info = reader.level(choice.level);
   ExportGrids grids = build_grids(reader, choice.level, channels, part, threads);
   const openvdb::MetaMap meta = export_metadata(config, info, choice, as_part, slices, part);
@@ -397,14 +397,19 @@ WrittenPart write_level_part(const Config& config, const format::Reader& reader,
   // system calls overlap OpenVDB's serialisation when a second thread is allowed.
   write_vdb_grids(output, openvdb::GridCPtrVec(named.begin(), named.end()), meta, threads > 1);
   w.bytes = std::uint64_t(fs::file_size(output));
-  if (names_out) *names_out = named;
+  // Only the names leave: the grids go with this scope, before the next part is built.
+  if (names_out) {
+    names_out->clear();
+    for (const auto& g : named)
+      names_out->push_back(g->getName());
+  }
   return w;
 }
 
 // The stage report of a written export (one file, a shard's part, or the parts of the level).
 void report_export(StageRun& run, const Config& config, const std::string& output,
                    const VdbExportPlan& plan, const format::LevelInfo& info, bool sharded,
-                   const std::vector<WrittenPart>& written, const openvdb::GridPtrVec& grids) {
+                   const std::vector<WrittenPart>& written, const std::vector<std::string>& grids) {
   const VdbLevelChoice& choice = plan.choice;
   run.set_report("output", output);
   std::uint64_t bytes = 0, active = 0, leaves = 0;
@@ -427,9 +432,7 @@ void report_export(StageRun& run, const Config& config, const std::string& outpu
       list.push_back(part_json(w));
     run.set_report("parts", list);
   }
-  nlohmann::json names = nlohmann::json::array();
-  for (const auto& g : grids)
-    names.push_back(g->getName());
+  const nlohmann::json names = grids;
   run.set_report("grids", names);
   run.set_report("level", choice.level);
   run.set_report("level_choice", choice.automatic ? "auto" : "vdb.level");
@@ -468,10 +471,8 @@ void remove_file(const std::string& path) {
 // grids of one name: their leaves are disjoint) and what each part holds.
 std::string parts_index_text(const Config& config, const VdbExportPlan& plan,
                              const format::LevelInfo& info, const std::vector<WrittenPart>& written,
-                             const openvdb::GridPtrVec& grids) {
-  nlohmann::json names = nlohmann::json::array();
-  for (const auto& g : grids)
-    names.push_back(g->getName());
+                             const std::vector<std::string>& grids) {
+  const nlohmann::json names = grids;
   nlohmann::json list = nlohmann::json::array();
   for (const auto& w : written)
     list.push_back(part_json(w));
@@ -564,7 +565,7 @@ StageResult export_vdb(const Config& config, const StageOptions& options) {
   // A voxel is active where the packed alpha (body coverage) is > 0: at level 0 of an
   // undownsampled file exactly the body mask.
   std::vector<WrittenPart> written;
-  openvdb::GridPtrVec named;
+  std::vector<std::string> named;  // the grids' names (the grids themselves die with each part)
   if (!parts) {
     const LevelPart part = level_part(reader, channels.rgba, choice.level, slices, stack);
     written.push_back(write_level_part(config, reader, choice, channels, part, sharded, slices,
