@@ -225,8 +225,11 @@ def main():
             mem[f"{stage}_peak_rss_mib"] = rss
             mem[f"{stage}_wall_s"] = wall
             report = json.load(open(os.path.join(folder, "work", stage, "report.json")))
-            mem[f"{stage}_report"] = {k: report[k] for k in ("output_bytes", "level", "chosen_level", "seconds")
+            mem[f"{stage}_report"] = {k: report[k] for k in ("output_bytes", "level", "chosen_level", "seconds",
+                                                             "layout", "layout_reason")
                                       if k in report}
+            if "parts" in report:  # the OpenVDB export written as parts (vdb.layout "auto")
+                mem[f"{stage}_report"]["parts"] = len(report["parts"])
         # One level-0 brick row of the output: x * y * brick_edge voxels of every stored channel.
         vpk = json.load(open(os.path.join(folder, "work", "pack", "report.json")))["output"]
         with vispack.open(vpk) as v:

@@ -134,7 +134,8 @@ class StagesSection:
                "slices would all fall inside the first row and could not show flatness. Exponent: "
                "log-log least-squares slope of peak memory against the slice count (0 = flat, 1 = "
                "proportional to the volume).\n")
-        stages = [s for s in ["register", "mask", "labels", "pack", "vdb"] if any(r["stage"] == s for r in rows)]
+        # "run": the whole vispack-run in one process (stage_memory.py), the peak a user sees.
+        stages = [s for s in ["register", "mask", "labels", "pack", "vdb", "run"] if any(r["stage"] == s for r in rows)]
         t, fits, growth, slope = [], {}, {}, {}
         for s in stages:
             rs = sorted((r for r in rows if r["stage"] == s), key=lambda r: r["slices"])
@@ -157,14 +158,15 @@ class StagesSection:
                 f"growth itself (under 10 % from {counts[0]} to {counts[-1]} slices = flat). "
                 f"Flat: {', '.join(f'{s} ({100 * growth[s]:+.0f} %)' for s in flat) or 'none'}. "
                 f"**Not flat: {', '.join(f'{s} ({100 * growth[s]:+.0f} %, {fmt(100 * slope[s])} MiB per 100 slices)' for s in grow) or 'none'}.**")
-        if "vdb" in grow:
-            text += (" The OpenVDB export is not flat at a fixed level, and cannot be with OpenVDB's writer: "
-                     "`openvdb::io::File::write` takes whole in-memory grids, so `vispack-vdb` builds "
-                     "the CT, label and colour grids of one pyramid level (active voxels inside the body) "
-                     "before writing; at a fixed level its memory grows with the body's voxel count, "
-                     "inherently. It is bounded instead by `vdb.max_memory_mb`: the export estimates each "
-                     "level's memory first and takes the finest level within the budget (these small "
-                     "stacks all fit level 0; the hand-measured OpenVDB section below shows the choice).")
+        vdb_rows = [r for r in rows if r["stage"] == "vdb"]
+        parts = [r for r in vdb_rows if r.get("vdb_layout") == "parts"]
+        text += (" The OpenVDB export holds whole grids of what it writes (`openvdb::io::File::write` takes "
+                 "in-memory grids), so at a fixed level one file's memory grows with the body's voxel count; "
+                 "`vdb.layout` \"auto\" writes the level as z-slab parts, each within `vdb.max_memory_mb`, once "
+                 "one file would exceed it (docs/ARCHITECTURE.md \"The OpenVDB export: one file or parts\"). "
+                 + (f"Here {len(parts)} of {len(vdb_rows)} vdb runs wrote parts."
+                    if parts else "These small stacks all fit one file at level 0, so vdb grows with them "
+                    "up to the budget; the real-size section below shows the parts."))
         if "pack" in grow:
             text += (" pack grows too: beyond the brick row it holds, its peak includes the "
                      "pyramid's coarser levels; see the format details section.")
@@ -179,7 +181,7 @@ class StagesSection:
                              ("not flat: " + ", ".join(grow) + (" (whole OpenVDB grids in memory)" if "vdb" in grow else ""))
                              if grow else "all flat"])
         fig, ax = plt.subplots(figsize=(7.5, 4.8))
-        for s, mk in zip(stages, "os^Dv"):
+        for s, mk in zip(stages, "os^Dv*"):
             rs = sorted((r for r in rows if r["stage"] == s), key=lambda r: r["slices"])
             ax.plot([r["slices"] for r in rs], [r["peak_rss_mib"] for r in rs], marker=mk, linewidth=1.5,
                     label=f"{s} (∝ slices^{fits[s]:.2f})")

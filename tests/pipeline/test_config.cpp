@@ -68,7 +68,7 @@ json full_config() {
     "pack": { "brick_edge": 64, "zstd_level": 3, "downsample": 1, "threads": 0,
               "keep_outside_body": "ct", "crop_margin_px": 8 },
     "work": { "write_registered": true, "write_ct": false, "overlay_max_px": 512 },
-    "vdb": { "enabled": true, "level": 1, "max_memory_mb": 4096 }
+    "vdb": { "enabled": true, "level": 1, "layout": "file", "max_memory_mb": 4096 }
   })");
 }
 

@@ -67,6 +67,9 @@ void expect_same(const vp::Config& a, const vp::Config& b) {
   EXPECT_EQ(a.work.write_ct, b.work.write_ct);
   EXPECT_EQ(a.work.overlay_max_px, b.work.overlay_max_px);
   EXPECT_EQ(a.vdb.enabled, b.vdb.enabled);
+  EXPECT_EQ(a.vdb.level, b.vdb.level);
+  EXPECT_EQ(a.vdb.layout, b.vdb.layout);
+  EXPECT_EQ(a.vdb.max_memory_mb, b.vdb.max_memory_mb);
 }
 
 }  // namespace
@@ -93,6 +96,9 @@ TEST(ConfigWriter, RoundTripsThroughTheLoader) {
   a.ct->z_offset_mm = -2.5;
   a.seg->slice_spacing_mm = 2.0;
   a.seg->z_offset_mm = 1.0;
+  a.vdb.level = 1;
+  a.vdb.layout = vp::VdbLayout::kFile;
+  a.vdb.max_memory_mb = 300;
   vp::write_config(dir / "again.json", a);
   const vp::Config b = vp::load_config(dir / "again.json");
   expect_same(a, b);

@@ -165,6 +165,26 @@ typename GridT::Ptr read_grid(const std::string& path, const std::string& name) 
   return grid;
 }
 
+// The voxels of a set of part files, gathered: each voxel must lie in its part's level z range
+// [z0, z1) and in one part only.
+struct GatheredParts {
+  std::map<std::array<int, 3>, openvdb::Vec3s> rgb;
+  std::map<std::array<int, 3>, float> ct;
+  std::map<std::array<int, 3>, int> labels;
+  std::size_t voxels = 0;
+  void add(const std::string& path, const openvdb::Vec3SGrid& part_rgb, int z0, int z1) {
+    for (const auto& [c, v] : active_voxels(part_rgb)) {
+      EXPECT_TRUE(c[2] >= z0 && c[2] < z1) << "voxel z " << c[2] << " outside the part " << path;
+      EXPECT_TRUE(rgb.emplace(c, v).second) << "voxel in two parts";
+      ++voxels;
+    }
+    for (const auto& [c, v] : active_voxels(*read_grid<openvdb::FloatGrid>(path, "ct")))
+      ct.emplace(c, v);
+    for (const auto& [c, v] : active_voxels(*read_grid<openvdb::Int32Grid>(path, "labels")))
+      labels.emplace(c, v);
+  }
+};
+
 }  // namespace
 
 // Shards (--slices A:B) export parts that tile the unsharded export exactly, at level 0 and at
@@ -191,10 +211,7 @@ TEST(Vdb, ShardsTileTheWholeExport) {
         active_voxels(*read_grid<openvdb::Int32Grid>(config.vdb_output, "labels"));
     ASSERT_GT(whole_rgb.size(), 500u);
 
-    std::map<std::array<int, 3>, openvdb::Vec3s> parts_rgb;
-    std::map<std::array<int, 3>, float> parts_ct;
-    std::map<std::array<int, 3>, int> parts_labels;
-    std::size_t part_voxels = 0;
+    GatheredParts gathered;
     const std::vector<std::tuple<int, int, std::string>> shards = {
         {0, 7, "0000-0007"}, {7, 16, "0007-0016"}, {16, 24, "0016-0024"}};
     for (const auto& [a, b, digits] : shards) {
@@ -215,22 +232,15 @@ TEST(Vdb, ShardsTileTheWholeExport) {
       const int z0 = (a + div - 1) / div, z1 = (b + div - 1) / div;
       EXPECT_EQ(rgb->metaValue<std::string>("vispack_part_z"),
                 std::to_string(z0) + ":" + std::to_string(z1));
-      for (const auto& [c, v] : active_voxels(*rgb)) {
-        EXPECT_TRUE(c[2] >= z0 && c[2] < z1) << "voxel z " << c[2] << " outside the part";
-        EXPECT_TRUE(parts_rgb.emplace(c, v).second) << "voxel in two parts";
-        ++part_voxels;
-      }
-      for (const auto& [c, v] : active_voxels(*read_grid<openvdb::FloatGrid>(path, "ct")))
-        parts_ct.emplace(c, v);
-      for (const auto& [c, v] : active_voxels(*read_grid<openvdb::Int32Grid>(path, "labels")))
-        parts_labels.emplace(c, v);
+      gathered.add(path, *rgb, z0, z1);
       // Up to date on a rerun; the part file alone was written (vdb_output untouched).
       EXPECT_EQ(run_vdb_stage(config, so).processed, 0);
     }
-    EXPECT_EQ(part_voxels, whole_rgb.size());
-    EXPECT_TRUE(parts_rgb == whole_rgb) << "the parts' colour differs from the whole export";
-    EXPECT_TRUE(parts_ct == whole_ct) << "the parts' CT differs from the whole export";
-    EXPECT_TRUE(parts_labels == whole_labels) << "the parts' labels differ from the whole export";
+    EXPECT_EQ(gathered.voxels, whole_rgb.size());
+    EXPECT_TRUE(gathered.rgb == whole_rgb) << "the parts' colour differs from the whole export";
+    EXPECT_TRUE(gathered.ct == whole_ct) << "the parts' CT differs from the whole export";
+    EXPECT_TRUE(gathered.labels == whole_labels)
+        << "the parts' labels differ from the whole export";
   }
 }
 
@@ -601,7 +611,8 @@ TEST_F(VdbLevels, TinyBudgetChoosesTheFinestLevelThatFits) {
     // The smallest whole MiB at or above level `want`'s estimate must lie below the finer one's.
     const std::int64_t budget = std::int64_t(std::ceil(mib(e[want])));
     ASSERT_LT(double(budget), mib(e[want - 1])) << "level " << want;
-    Config config = config_with({{"max_memory_mb", budget}}, cat("budget", want, ".vdb"));
+    Config config =
+        config_with({{"max_memory_mb", budget}, {"layout", "file"}}, cat("budget", want, ".vdb"));
     const VdbLevelChoice choice = choose_vdb_level(config, reader, 2);
     EXPECT_EQ(choice.level, want);
     EXPECT_TRUE(choice.automatic);
@@ -704,6 +715,87 @@ TEST_F(VdbLevels, GridsAtLevelOneHoldThePackedLevel) {
   EXPECT_EQ(wrong, 0u);
 }
 
+// Over vdb.max_memory_mb as one file, level 0 is written as parts (z slabs, each estimated within
+// the budget) whose grids, merged, hold exactly the voxels and values of the one-file export
+// (vdb.layout "file"); the index lists them, vdb_output is not written, the report says why; a
+// rerun is up to date; back under the budget, one file replaces the parts.
+TEST_F(VdbLevels, PartsOverTheBudgetHoldTheOneFileExport) {
+  const Config one = config_with({{"level", 0}, {"layout", "file"}}, "one.vdb");
+  run_vdb_stage(one, quiet_stage());
+  openvdb::initialize();
+  const auto whole_rgb = active_voxels(*read_grid<openvdb::Vec3SGrid>(one.vdb_output, "rgb"));
+  const auto whole_ct = active_voxels(*read_grid<openvdb::FloatGrid>(one.vdb_output, "ct"));
+  const auto whole_labels = active_voxels(*read_grid<openvdb::Int32Grid>(one.vdb_output, "labels"));
+  ASSERT_GT(whole_rgb.size(), 10000u);
+
+  // A budget that holds about a third of level 0's leaves per part.
+  const format::Reader reader = format::Reader::open(one.output);
+  const VdbLevelEstimate e = estimate_vdb_level(reader, 0, 2);
+  const std::int64_t budget = std::int64_t(
+      std::ceil(mib(kVdbFixedBytes + double(e.leaves) * vdb_bytes_per_leaf(reader) / 3)));
+  ASSERT_LT(double(budget), mib(e.bytes)) << "level 0 would fit as one file";
+  const Config config = config_with({{"max_memory_mb", budget}}, "parts.vdb");
+  const StageResult r = run_vdb_stage(config, quiet_stage());
+  const std::string index = vdb_parts_index_path(config);
+  EXPECT_EQ(fs::path(index).filename().string(), "parts.parts.json");
+  EXPECT_EQ(r.output, index);
+  EXPECT_FALSE(fs::exists(config.vdb_output));
+  const auto listed = nlohmann::json::parse(read_file(index));
+  EXPECT_EQ(listed["level"], 0);
+  const auto& parts = listed["parts"];
+  ASSERT_GE(parts.size(), 3u);
+  const auto dims = reader.dims(0);
+
+  GatheredParts gathered;
+  openvdb::Vec3SGrid::Ptr merged;
+  std::int64_t next_z = 0;
+  for (const auto& p : parts) {
+    const std::int64_t z0 = p["z"][0], z1 = p["z"][1];
+    EXPECT_EQ(z0, next_z) << "the parts do not tile the level";
+    EXPECT_EQ(z0 % 8, 0) << "a part boundary inside a leaf";
+    EXPECT_LE(p["estimated_mb"].get<double>(), double(budget));
+    next_z = z1;
+    const std::string path = fs::path(index).parent_path() / p["file"].get<std::string>();
+    const int a = p["slices"][0], b = p["slices"][1];
+    EXPECT_EQ(path, vdb_part_path(config, a, b));
+    auto rgb = read_grid<openvdb::Vec3SGrid>(path, "rgb");
+    ASSERT_TRUE(rgb) << path;
+    EXPECT_EQ(rgb->metaValue<std::string>("vispack_part_z"), cat(z0, ":", z1));
+    EXPECT_EQ(rgb->metaValue<int>("vispack_level"), 0);
+    gathered.add(path, *rgb, int(z0), int(z1));
+    // OpenVDB's own merge of the parts (as a user would open them).
+    if (!merged)
+      merged = rgb;
+    else
+      merged->tree().merge(rgb->tree(), openvdb::MERGE_ACTIVE_STATES);
+  }
+  EXPECT_EQ(next_z, dims[2]);
+  EXPECT_EQ(gathered.voxels, whole_rgb.size());
+  EXPECT_TRUE(gathered.rgb == whole_rgb) << "the parts' colour differs from the one-file export";
+  EXPECT_TRUE(gathered.ct == whole_ct) << "the parts' CT differs from the one-file export";
+  EXPECT_TRUE(gathered.labels == whole_labels)
+      << "the parts' labels differ from the one-file export";
+  ASSERT_TRUE(merged);
+  EXPECT_TRUE(active_voxels(*merged) == whole_rgb);
+
+  const auto report = nlohmann::json::parse(read_file(config.work_dir + "/vdb/report.json"));
+  EXPECT_EQ(report["layout"], "parts");
+  EXPECT_EQ(report["level"], 0);
+  EXPECT_NE(report["layout_reason"].get<std::string>().find("over vdb.max_memory_mb"),
+            std::string::npos)
+      << report["layout_reason"];
+  EXPECT_EQ(report["parts"].size(), parts.size());
+  EXPECT_EQ(run_vdb_stage(config, quiet_stage()).processed, 0) << "not up to date on a rerun";
+
+  // Under the default budget the same output is one file; the parts and their index go.
+  const Config back = config_with(nlohmann::json::object(), "parts.vdb");
+  EXPECT_EQ(run_vdb_stage(back, quiet_stage()).output, back.vdb_output);
+  EXPECT_TRUE(fs::exists(back.vdb_output));
+  EXPECT_FALSE(fs::exists(index));
+  for (const auto& p : parts)
+    EXPECT_FALSE(fs::exists(fs::path(index).parent_path() / p["file"].get<std::string>()));
+}
+
 // vdb.level over the budget: a ConfigError naming the key, the level, the estimate and the
 // budget; nothing is written. A level the file does not have: a ConfigError too.
 TEST_F(VdbLevels, ExplicitLevelOverBudgetIsAConfigError) {
@@ -741,10 +833,14 @@ TEST(VdbConfig, LevelAndBudgetKeys) {
   };
   Config c = load_with(nlohmann::json::object());
   EXPECT_FALSE(c.vdb.level.has_value());
-  EXPECT_EQ(c.vdb.max_memory_mb, 8192);
-  c = load_with({{"level", "auto"}, {"max_memory_mb", 500}});
+  EXPECT_EQ(c.vdb.max_memory_mb, 2048);
+  EXPECT_EQ(c.vdb.layout, VdbLayout::kAuto);
+  c = load_with({{"level", "auto"}, {"max_memory_mb", 500}, {"layout", "file"}});
   EXPECT_FALSE(c.vdb.level.has_value());
   EXPECT_EQ(c.vdb.max_memory_mb, 500);
+  EXPECT_EQ(c.vdb.layout, VdbLayout::kFile);
+  EXPECT_EQ(load_with({{"layout", "auto"}}).vdb.layout, VdbLayout::kAuto);
+  EXPECT_THROW(load_with({{"layout", "parts"}}), ConfigError);
   EXPECT_EQ(load_with({{"level", 2}}).vdb.level, 2);
   EXPECT_THROW(load_with({{"level", "fine"}}), ConfigError);
   EXPECT_THROW(load_with({{"level", -1}}), ConfigError);

@@ -347,7 +347,7 @@ const std::vector<std::pair<std::string, std::vector<std::string>>>& known_keys(
        {"brick_edge", "zstd_level", "downsample", "threads", "keep_outside_body",
         "crop_margin_px"}},
       {"work", {"write_registered", "write_ct", "overlay_max_px"}},
-      {"vdb", {"enabled", "level", "max_memory_mb"}},
+      {"vdb", {"enabled", "level", "layout", "max_memory_mb"}},
   };
   return table;
 }
@@ -627,7 +627,12 @@ void parse_vdb_section(Section& top, Config& config) {
       config.vdb.level = int(s.integer("level", 0, 0, 15));
     }
   }
-  config.vdb.max_memory_mb = s.integer("max_memory_mb", 8192, 16, std::int64_t(1) << 30);
+  const std::string layout = s.string("layout", "auto");
+  if (layout == "file")
+    config.vdb.layout = VdbLayout::kFile;
+  else if (layout != "auto")
+    s.report("layout", cat("\"", layout, "\" is not a layout (\"auto\" or \"file\")"));
+  config.vdb.max_memory_mb = s.integer("max_memory_mb", 2048, 16, std::int64_t(1) << 30);
   s.finish();
 }
 
@@ -790,6 +795,7 @@ json config_to_json(const Config& config, const std::string& base_dir) {
                  {"overlay_max_px", config.work.overlay_max_px}};
   out["vdb"] = {{"enabled", config.vdb.enabled}, {"max_memory_mb", config.vdb.max_memory_mb}};
   out["vdb"]["level"] = config.vdb.level ? json(*config.vdb.level) : json("auto");
+  out["vdb"]["layout"] = config.vdb.layout == VdbLayout::kFile ? "file" : "auto";
   return out;
 }
 

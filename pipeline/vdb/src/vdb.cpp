@@ -1,5 +1,6 @@
 #include "vispack/pipeline/vdb/vdb.h"
 
+#include <malloc.h>
 #include <sys/resource.h>
 
 #include <algorithm>
@@ -9,6 +10,10 @@
 #include <filesystem>
 #include <memory>
 #include <optional>
+#include <stdexcept>
+#include <string>
+#include <system_error>
+#include <vector>
 
 #include <openvdb/openvdb.h>
 #include <tbb/global_control.h>
@@ -72,6 +77,11 @@ std::string vdb_part_path(const Config& config, int first, int last) {
   return (whole.parent_path() / (whole.stem().string() + range + ".vdb")).string();
 }
 
+std::string vdb_parts_index_path(const Config& config) {
+  const fs::path whole(config.vdb_output);
+  return (whole.parent_path() / (whole.stem().string() + ".parts.json")).string();
+}
+
 namespace {
 
 // The part of the chosen level one export writes: level z in [z_first, z_last) (the whole level
@@ -82,26 +92,45 @@ struct LevelPart {
   std::vector<std::array<std::int64_t, 3>> body_bricks;
 };
 
-// Stack slices [part.first, part.last) of a stack of `stack` slices cover the level's z range
-// ceil(A * D / S) .. ceil(B * D / S): consecutive shards meet exactly, so their parts tile the
-// level.
-LevelPart level_part(const format::Reader& reader, int rgba, int level, SliceRange part,
-                     int stack) {
-  const format::LevelInfo& info = reader.level(level);
+// The level's z range [z_first, z_last) and its body bricks.
+LevelPart level_part_z(const format::Reader& reader, int rgba, int level, std::int64_t z_first,
+                       std::int64_t z_last) {
+  const auto& grid = reader.level(level).bricks;
   const std::int64_t edge = reader.brick_edge();
-  const auto& grid = info.bricks;
-  const std::int64_t depth = info.dims[2];
-  const auto level_z = [&](int s) { return (std::int64_t(s) * depth + stack - 1) / stack; };
   LevelPart out;
-  out.z_first = level_z(part.first);
-  out.z_last = level_z(part.last);
-  const std::int64_t bz_first = out.z_first / edge, bz_last = (out.z_last + edge - 1) / edge;
+  out.z_first = z_first;
+  out.z_last = z_last;
+  const std::int64_t bz_first = z_first / edge, bz_last = (z_last + edge - 1) / edge;
   for (std::int64_t bz = bz_first; bz < bz_last; ++bz)
     for (std::int64_t by = 0; by < grid[1]; ++by)
       for (std::int64_t bx = 0; bx < grid[0]; ++bx)
         if (reader.brick(rgba, level, bx, by, bz).max[3] != 0)
           out.body_bricks.push_back({bx, by, bz});
   return out;
+}
+
+// The level z where stack slice s begins, for a level of `depth` slices: ceil(s * depth /
+// stack). Consecutive shards [A, B) [B, C) meet exactly, so their parts tile the level.
+std::int64_t level_z_of_slice(int s, std::int64_t depth, int stack) {
+  return (std::int64_t(s) * depth + stack - 1) / stack;
+}
+
+// The first stack slice whose level z is `z` (the inverse of level_z_of_slice for a level no
+// deeper than the stack): the slices a part of level z range covers, for its name.
+int slice_of_level_z(std::int64_t z, std::int64_t depth, int stack) {
+  if (z <= 0) return 0;
+  if (z >= depth) return stack;
+  const int s = int((z - 1) * stack / depth + 1);
+  if (level_z_of_slice(s, depth, stack) != z)
+    throw std::logic_error(cat("vdb: level z ", z, " of ", depth, " starts no slice of ", stack));
+  return s;
+}
+
+LevelPart level_part(const format::Reader& reader, int rgba, int level, SliceRange part,
+                     int stack) {
+  const std::int64_t depth = reader.level(level).dims[2];
+  return level_part_z(reader, rgba, level, level_z_of_slice(part.first, depth, stack),
+                      level_z_of_slice(part.last, depth, stack));
 }
 
 // The channels of the packed file the export reads.
@@ -249,6 +278,11 @@ ExportGrids build_grids(const format::Reader& reader, int level, const ExportCha
       if (channels.labels)
         b.labels =
             brick_voxels(reader, reader.brick(*channels.labels, level, bx, by, bz), label_buf);
+      // Decoded: the file's pages need not stay resident (the export's memory is its grids).
+      reader.release_payload_pages(reader.brick(channels.rgba, level, bx, by, bz));
+      if (channels.ct) reader.release_payload_pages(reader.brick(*channels.ct, level, bx, by, bz));
+      if (channels.labels)
+        reader.release_payload_pages(reader.brick(*channels.labels, level, bx, by, bz));
       b.labels16 = channels.labels16;
       b.edge = edge;
       b.nx = std::min(edge, info.dims[0] - bx * edge);
@@ -323,20 +357,83 @@ openvdb::GridPtrVec named_grids(const ExportGrids& grids, const ExportChannels& 
   return out;
 }
 
-// The stage report of a written export.
-void report_export(StageRun& run, const Config& config, const std::string& output,
-                   const VdbLevelChoice& choice, const format::LevelInfo& info, bool sharded,
-                   SliceRange slices, const LevelPart& part, const openvdb::GridPtrVec& grids,
-                   std::uint64_t active, std::uint64_t leaves) {
-  run.set_report("output", output);
-  run.set_report("output_bytes", std::uint64_t(fs::file_size(output)));
-  if (sharded) {
-    run.set_report("part_slices", {slices.first, slices.last});
-    run.set_report("part_z", {part.z_first, part.z_last});
+// One file written: its path, the level part it holds, the stack slices that part covers.
+struct WrittenPart {
+  std::string path;
+  LevelPart part;
+  SliceRange slices;
+  std::uint64_t active = 0, leaves = 0, bytes = 0;
+  double estimated_bytes = 0;
+};
+
+nlohmann::json part_json(const WrittenPart& w) {
+  return {{"file", fs::path(w.path).filename().string()},
+          {"slices", {w.slices.first, w.slices.last}},
+          {"z", {w.part.z_first, w.part.z_last}},
+          {"active_voxels", w.active},
+          {"leaves", w.leaves},
+          {"estimated_mb", w.estimated_bytes / (1024.0 * 1024.0)},
+          {"bytes", w.bytes}};
+}
+
+// Builds the grids of `part` of the chosen level and writes them to `output` (atomically).
+// `as_part`: the file is one part of the level (metadata "vispack_part_slices", "vispack_part_z").
+WrittenPart write_level_part(const Config& config, const format::Reader& reader,
+                             const VdbLevelChoice& choice, const ExportChannels& channels,
+                             const LevelPart& part, bool as_part, SliceRange slices,
+                             const std::string& output, int threads,
+                             std::vector<std::string>* names_out) {
+  const format::LevelInfo& info = reader.level(choice.level);
+  ExportGrids grids = build_grids(reader, choice.level, channels, part, threads);
+  const openvdb::MetaMap meta = export_metadata(config, info, choice, as_part, slices, part);
+  const openvdb::GridPtrVec named = named_grids(grids, channels, meta);
+  WrittenPart w;
+  w.path = output;
+  w.part = part;
+  w.slices = slices;
+  w.active = grids.active;
+  w.leaves = grids.rgb->tree().leafCount();
+  make_directories(fs::path(output).parent_path().string());
+  // Written to a temporary name and renamed into place (removed on any failure); the write
+  // system calls overlap OpenVDB's serialisation when a second thread is allowed.
+  write_vdb_grids(output, openvdb::GridCPtrVec(named.begin(), named.end()), meta, threads > 1);
+  w.bytes = std::uint64_t(fs::file_size(output));
+  // Only the names leave: the grids go with this scope, before the next part is built.
+  if (names_out) {
+    names_out->clear();
+    for (const auto& g : named)
+      names_out->push_back(g->getName());
   }
-  nlohmann::json names = nlohmann::json::array();
-  for (const auto& g : grids)
-    names.push_back(g->getName());
+  return w;
+}
+
+// The stage report of a written export (one file, a shard's part, or the parts of the level).
+void report_export(StageRun& run, const Config& config, const std::string& output,
+                   const VdbExportPlan& plan, const format::LevelInfo& info, bool sharded,
+                   const std::vector<WrittenPart>& written, const std::vector<std::string>& grids) {
+  const VdbLevelChoice& choice = plan.choice;
+  run.set_report("output", output);
+  std::uint64_t bytes = 0, active = 0, leaves = 0;
+  for (const auto& w : written) {
+    bytes += w.bytes;
+    active += w.active;
+    leaves += w.leaves;
+  }
+  run.set_report("output_bytes", bytes);
+  if (sharded) {
+    run.set_report("part_slices", {written[0].slices.first, written[0].slices.last});
+    run.set_report("part_z", {written[0].part.z_first, written[0].part.z_last});
+  }
+  const bool parts = !plan.parts.empty();
+  run.set_report("layout", parts ? "parts" : "file");
+  run.set_report("layout_reason", plan.why);
+  if (parts) {
+    nlohmann::json list = nlohmann::json::array();
+    for (const auto& w : written)
+      list.push_back(part_json(w));
+    run.set_report("parts", list);
+  }
+  const nlohmann::json names = grids;
   run.set_report("grids", names);
   run.set_report("level", choice.level);
   run.set_report("level_choice", choice.automatic ? "auto" : "vdb.level");
@@ -352,6 +449,53 @@ void report_export(StageRun& run, const Config& config, const std::string& outpu
   run.set_quality("leaves", leaves);
 }
 
+// The part files an index lists (absolute), or empty when it is missing or unreadable.
+std::vector<std::string> indexed_parts(const std::string& index) {
+  std::vector<std::string> files;
+  if (!fs::exists(index)) return files;
+  try {
+    const auto j = nlohmann::json::parse(read_file(index));
+    for (const auto& p : j.at("parts"))
+      files.push_back((fs::path(index).parent_path() / p.at("file").get<std::string>()).string());
+  } catch (const std::exception&) {
+    return {};
+  }
+  return files;
+}
+
+void remove_file(const std::string& path) {
+  std::error_code ec;
+  fs::remove(path, ec);
+}
+
+// The parts' index, "<vdb_output stem>.parts.json": how to open the export (merge the parts'
+// grids of one name: their leaves are disjoint) and what each part holds.
+std::string parts_index_text(const Config& config, const VdbExportPlan& plan,
+                             const format::LevelInfo& info, const std::vector<WrittenPart>& written,
+                             const std::vector<std::string>& grids) {
+  const nlohmann::json names = grids;
+  nlohmann::json list = nlohmann::json::array();
+  for (const auto& w : written)
+    list.push_back(part_json(w));
+  const nlohmann::json j = {
+      {"vispack_version", version_string()},
+      {"source", fs::path(config.output).filename().string()},
+      {"level", plan.choice.level},
+      {"level_choice", plan.choice.automatic ? "auto" : "vdb.level"},
+      {"dims", info.dims},
+      {"voxel_size_mm", info.spacing_mm},
+      {"origin_mm", info.origin_mm},
+      {"grids", names},
+      {"reason", plan.why},
+      {"max_memory_mb", config.vdb.max_memory_mb},
+      {"how_to_open",
+       "each part is a complete OpenVDB file of the same grids, transform and metadata, holding "
+       "the level's z range \"z\" (index space); the parts' leaves are disjoint, so merging the "
+       "grids of one name (tree().merge) gives the whole level"},
+      {"parts", list}};
+  return j.dump(2) + "\n";
+}
+
 // The export itself: run_vdb_stage runs it inside its TBB arena.
 StageResult export_vdb(const Config& config, const StageOptions& options) {
   if (!config.vdb.enabled || config.vdb_output.empty())
@@ -365,10 +509,11 @@ StageResult export_vdb(const Config& config, const StageOptions& options) {
                          ": packed file missing: vispack-vdb exports the packed "
                          "file's pyramid (run vispack-pack first)"));
 
-  // Unsharded: one unit (the file) in work/vdb. A shard: its part file is unit `slices.first` of
-  // work/vdb-parts (a shard's manifest records only its own part).
+  // Unsharded: one unit in work/vdb (the file, or the parts and their index). A shard: its part
+  // file is unit `slices.first` of work/vdb-parts (a shard's manifest records only its own part).
   const std::string output =
       sharded ? vdb_part_path(config, slices.first, slices.last) : config.vdb_output;
+  const std::string index = vdb_parts_index_path(config);
   Fingerprint fp;
   fp.file(config.output).text(output);
   if (sharded) fp.text(cat(slices.first, ":", slices.last));
@@ -382,37 +527,96 @@ StageResult export_vdb(const Config& config, const StageOptions& options) {
     run.skip(unit_index);
     return run.finish(output);
   }
+  if (!sharded) {
+    std::vector<std::string> outputs = indexed_parts(index);
+    if (!outputs.empty()) {
+      outputs.push_back(index);
+      if (run.up_to_date(unit_index, input, outputs)) {
+        run.skip(unit_index);
+        return run.finish(index);
+      }
+    }
+  }
 
   const format::Reader reader = format::Reader::open(config.output);
-  const VdbLevelChoice choice = choose_vdb_level(config, reader, run.threads());
+  // A shard exports its part of the level the whole fits (choose_vdb_level), as before the
+  // unsharded export could write parts: every shard must choose the same level.
+  VdbExportPlan plan;
+  if (sharded) {
+    plan.choice = choose_vdb_level(config, reader, run.threads());
+    plan.why = "a shard (--slices): the finest level whose whole fits vdb.max_memory_mb";
+  } else {
+    plan = plan_vdb_export(config, reader, run.threads());
+  }
+  const VdbLevelChoice& choice = plan.choice;
   const format::LevelInfo& info = reader.level(choice.level);
   const std::string chosen = describe_vdb_choice(choice);
-  if (!options.quiet)
+  const bool parts = !plan.parts.empty();
+  if (!options.quiet) {
     std::printf(
-        "vdb: exporting %s (%s)%s\n", chosen.c_str(),
-        choice.automatic ? "the finest level within vdb.max_memory_mb" : "vdb.level",
+        "vdb: exporting %s as %s (%s)%s\n", chosen.c_str(),
+        parts ? cat(plan.parts.size(), " parts listed in ", index).c_str() : "one file",
+        plan.why.c_str(),
         sharded ? cat(", slices ", slices.first, ":", slices.last, " to ", output).c_str() : "");
-  std::fflush(stdout);
+    std::fflush(stdout);
+  }
 
   const ExportChannels channels = export_channels(reader);
   openvdb::initialize();
   // A voxel is active where the packed alpha (body coverage) is > 0: at level 0 of an
   // undownsampled file exactly the body mask.
-  const LevelPart part = level_part(reader, channels.rgba, choice.level, slices, stack);
-  ExportGrids grids = build_grids(reader, choice.level, channels, part, run.threads());
-  const openvdb::MetaMap meta = export_metadata(config, info, choice, sharded, slices, part);
-  const openvdb::GridPtrVec named = named_grids(grids, channels, meta);
-  const std::uint64_t leaves = grids.rgb->tree().leafCount();
+  std::vector<WrittenPart> written;
+  std::vector<std::string> named;  // the grids' names (the grids themselves die with each part)
+  if (!parts) {
+    const LevelPart part = level_part(reader, channels.rgba, choice.level, slices, stack);
+    written.push_back(write_level_part(config, reader, choice, channels, part, sharded, slices,
+                                       output, run.threads(), &named));
+    if (!sharded) {  // parts of an earlier run at another budget would contradict the file
+      for (const auto& f : indexed_parts(index))
+        remove_file(f);
+      remove_file(index);
+    }
+    run.done(unit_index, input, {output}, reader.file_size());
+    report_export(run, config, output, plan, info, sharded, written, named);
+    return run.finish(output);
+  }
 
-  make_directories(fs::path(output).parent_path().string());
-  // Written to a temporary name and renamed into place (removed on any failure); the write
-  // system calls overlap OpenVDB's serialisation when a second thread is allowed.
-  write_vdb_grids(output, openvdb::GridCPtrVec(named.begin(), named.end()), meta,
-                  run.threads() > 1);
-  run.done(unit_index, input, {output}, reader.file_size());
-  report_export(run, config, output, choice, info, sharded, slices, part, named, grids.active,
-                leaves);
-  return run.finish(output);
+  // Parts: the index goes first (a set of parts without it is incomplete) and is written last;
+  // a single file of an earlier run goes too.
+  const std::vector<std::string> stale = indexed_parts(index);
+  remove_file(index);
+  remove_file(config.vdb_output);
+  const std::int64_t depth = info.dims[2];
+  std::vector<std::string> outputs;
+  for (std::size_t i = 0; i < plan.parts.size(); ++i) {
+    const VdbPartPlan& p = plan.parts[i];
+    const SliceRange covers{slice_of_level_z(p.z_first, depth, stack),
+                            slice_of_level_z(p.z_last, depth, stack)};
+    const std::string path = vdb_part_path(config, covers.first, covers.last);
+    run.remove_stale_temporaries_of(path);
+    const LevelPart part = level_part_z(reader, channels.rgba, choice.level, p.z_first, p.z_last);
+    written.push_back(write_level_part(config, reader, choice, channels, part, true, covers, path,
+                                       run.threads(), &named));
+    written.back().estimated_bytes = p.bytes;
+    // The part's grids are freed; glibc keeps much of it in the builder threads' arenas, which
+    // the next part's threads did not reuse (2048x1216, two parts: the second peaked 40 % above
+    // the first): hand it back before the next part is built.
+    malloc_trim(0);
+    outputs.push_back(path);
+    if (!options.quiet) {
+      std::printf("vdb: part %zu/%zu: z %lld:%lld (slices %d:%d), %llu leaves -> %s\n", i + 1,
+                  plan.parts.size(), (long long)p.z_first, (long long)p.z_last, covers.first,
+                  covers.last, (unsigned long long)written.back().leaves, path.c_str());
+      std::fflush(stdout);
+    }
+  }
+  for (const auto& f : stale)
+    if (std::find(outputs.begin(), outputs.end(), f) == outputs.end()) remove_file(f);
+  write_file_atomic(index, parts_index_text(config, plan, info, written, named));
+  outputs.push_back(index);
+  run.done(unit_index, input, outputs, reader.file_size());
+  report_export(run, config, index, plan, info, false, written, named);
+  return run.finish(index);
 }
 
 }  // namespace

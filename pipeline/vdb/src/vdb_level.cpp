@@ -79,6 +79,8 @@ void count_active_leaves(const format::Reader& reader, int channel, int level, i
   auto flag = [&](std::int64_t x, std::int64_t y, std::int64_t z) {
     touched[std::size_t(((z / 8) * leaf_dims[1] + y / 8) * leaf_dims[0] + x / 8)] = 1;
   };
+  // Touched leaves per layer of 8 level z (the parts' planning, plan_vdb_parts): counted from
+  // the flags after the scan.
   std::atomic<std::uint64_t> active{0}, scanned{0};
   const std::size_t brick_bytes = reader.brick_bytes(channel);
   parallel_for(grid[2] * grid[1], edge % 8 == 0 ? threads : 1, [&](std::int64_t row) {
@@ -101,6 +103,7 @@ void count_active_leaves(const format::Reader& reader, int channel, int level, i
       scanned += b.stored_size;
       buffer.resize(brick_bytes);
       reader.decode_brick(b, buffer.data(), buffer.size());
+      reader.release_payload_pages(b);  // the file's pages do not stay resident
       for (std::int64_t z = 0; z < nz; ++z)
         for (std::int64_t y = 0; y < ny; ++y) {
           const std::uint8_t* voxel = buffer.data() + 4 * std::size_t((z * edge + y) * edge);
@@ -115,7 +118,15 @@ void count_active_leaves(const format::Reader& reader, int channel, int level, i
   });
   est.active_voxels = active.load();
   est.scanned_bytes = scanned.load();
-  est.leaves = std::uint64_t(std::count(touched.begin(), touched.end(), std::uint8_t(1)));
+  est.leaves_per_layer.assign(std::size_t(leaf_dims[2]), 0);
+  const std::size_t layer = std::size_t(leaf_dims[0] * leaf_dims[1]);
+  for (std::size_t l = 0; l < est.leaves_per_layer.size(); ++l)
+    est.leaves_per_layer[l] = std::uint64_t(
+        std::count(touched.begin() + std::ptrdiff_t(l * layer),
+                   touched.begin() + std::ptrdiff_t((l + 1) * layer), std::uint8_t(1)));
+  est.leaves = 0;
+  for (const std::uint64_t n : est.leaves_per_layer)
+    est.leaves += n;
 }
 
 }  // namespace
@@ -183,6 +194,103 @@ VdbLevelChoice choose_vdb_level(const Config& config, const format::Reader& read
   }
   throw ConfigError(cat(config.path, ": vdb.max_memory_mb: even the coarsest ",
                         describe_vdb_choice(choice), ": does not fit (raise vdb.max_memory_mb)"));
+}
+
+double vdb_part_bytes(const format::Reader& reader, std::uint64_t leaves) {
+  return kVdbFixedBytes + double(leaves) * vdb_bytes_per_leaf(reader);
+}
+
+std::vector<VdbPartPlan> plan_vdb_parts(const format::Reader& reader, const VdbLevelEstimate& est,
+                                        double budget_bytes) {
+  if (!est.exact || est.leaves_per_layer.empty())
+    throw std::logic_error("plan_vdb_parts needs an exact estimate with its leaf layers");
+  const std::int64_t depth = est.dims[2], edge = reader.brick_edge();
+  const auto layers_bytes = [&](std::int64_t z0, std::int64_t z1) {  // leaf layers of [z0, z1)
+    std::uint64_t leaves = 0;
+    for (std::int64_t l = z0 / 8; l < (z1 + 7) / 8; ++l)
+      leaves += est.leaves_per_layer[std::size_t(l)];
+    return leaves;
+  };
+  std::vector<VdbPartPlan> parts;
+  std::int64_t z = 0;
+  while (z < depth) {
+    VdbPartPlan part;
+    part.z_first = z;
+    std::int64_t end = z;
+    std::uint64_t leaves = 0;
+    // Whole brick rows while they fit (each brick decoded once), else leaf layers of one row.
+    while (end < depth) {
+      const std::int64_t row_end = std::min(depth, (end / edge + 1) * edge);
+      const std::uint64_t row = layers_bytes(end, row_end);
+      if (vdb_part_bytes(reader, leaves + row) <= budget_bytes) {
+        leaves += row;
+        end = row_end;
+        continue;
+      }
+      if (end == z) {
+        // One brick row alone is over the budget: as many leaf layers of it as fit.
+        while (end < row_end) {
+          const std::int64_t layer_end = std::min(row_end, (end / 8 + 1) * 8);
+          const std::uint64_t layer = layers_bytes(end, layer_end);
+          if (vdb_part_bytes(reader, leaves + layer) > budget_bytes) break;
+          leaves += layer;
+          end = layer_end;
+        }
+      }
+      break;
+    }
+    if (end == z) return {};  // one layer of 8 z alone is over the budget
+    part.z_last = end;
+    part.leaves = leaves;
+    part.bytes = vdb_part_bytes(reader, leaves);
+    parts.push_back(part);
+    z = end;
+  }
+  return parts;
+}
+
+VdbExportPlan plan_vdb_export(const Config& config, const format::Reader& reader, int threads) {
+  VdbExportPlan plan;
+  if (config.vdb.layout == VdbLayout::kFile) {
+    plan.choice = choose_vdb_level(config, reader, threads);
+    plan.why = plan.choice.automatic
+                   ? "vdb.layout \"file\": the finest level within vdb.max_memory_mb"
+                   : "vdb.level, vdb.layout \"file\"";
+    return plan;
+  }
+  VdbLevelChoice& choice = plan.choice;
+  choice.budget_bytes = double(config.vdb.max_memory_mb) * kMiB;
+  choice.automatic = !config.vdb.level;
+  const int levels = reader.level_count();
+  const int first = config.vdb.level.value_or(0);
+  if (first >= levels)
+    throw ConfigError(cat(config.path, ": vdb.level: ", first, ": the packed file ", reader.path(),
+                          " has levels 0..", levels - 1));
+  for (int level = first; level < levels; ++level) {
+    choice.level = level;
+    choice.estimates.push_back(estimate_vdb_level(reader, level, threads));
+    const VdbLevelEstimate& est = choice.chosen();
+    if (est.bytes <= choice.budget_bytes) {
+      plan.why =
+          cat(choice.automatic ? "level 0" : "vdb.level", " fits vdb.max_memory_mb: one file");
+      return plan;
+    }
+    plan.parts = plan_vdb_parts(reader, est, choice.budget_bytes);
+    if (!plan.parts.empty()) {
+      plan.why = cat(choice.automatic ? "level 0" : "vdb.level", " needs ", mb(est.bytes),
+                     " MB as one file, over vdb.max_memory_mb ", mb(choice.budget_bytes),
+                     " MB: ", plan.parts.size(), " parts (z slabs), each within it");
+      return plan;
+    }
+    if (!choice.automatic) break;
+  }
+  if (!choice.automatic)
+    throw ConfigError(cat(config.path, ": vdb.level: ", describe_vdb_choice(choice),
+                          ": does not fit vdb.max_memory_mb, not even as parts of 8 z slices "
+                          "(raise it, or choose a coarser level or \"auto\")"));
+  throw ConfigError(
+      cat(config.path, ": vdb.max_memory_mb: even the coarsest ", describe_vdb_choice(choice),
+          ": does not fit, not even as parts of 8 z slices (raise vdb.max_memory_mb)"));
 }
 
 std::string describe_vdb_choice(const VdbLevelChoice& choice) {

@@ -134,17 +134,24 @@ struct WorkOptions {
                                   // (downsampled by block mean); 0 = full size
 };
 
-// Config section "vdb" (the OpenVDB export, vdb.h). The export holds whole grids in memory, so
-// it exports one level of the packed file's pyramid: `level` when set, else the finest level
-// whose estimated memory fits `max_memory_mb` (vdb_level.h). A set `level` whose estimate
-// exceeds the budget is a ConfigError, not an export that might be killed.
+// Config section "vdb" (the OpenVDB export, vdb.h). OpenVDB's writer takes whole in-memory
+// grids, so the export's memory is bounded by `max_memory_mb` through its layout
+// (docs/ARCHITECTURE.md "The OpenVDB export: one file or parts"): with layout "auto" the level
+// (`level`, or 0) is written as one file when its estimate fits the budget, else as parts of
+// consecutive z slabs, each within the budget, listed in "<vdb_output stem>.parts.json"; with
+// layout "file" one file always, at `level` or else the finest level whose estimate fits (a set
+// `level` over the budget is a ConfigError, not an export that might be killed).
+enum class VdbLayout { kAuto, kFile };
+
 struct VdbOptions {
   bool enabled = true;
   std::optional<int> level;  // vdb.level: 0 = the packed file's level 0; unset / "auto" = auto
-  // vdb.max_memory_mb: budget for the grids (MiB). 8192 by default: a fixed number, so the level
-  // chosen (and the file written) does not depend on the machine; it leaves 16 GiB of a 24 GiB
-  // machine to everything else and chooses level 1 (~3 GB) for the NLM male (level 0 ~25 GB).
-  std::int64_t max_memory_mb = 8192;
+  VdbLayout layout = VdbLayout::kAuto;  // vdb.layout: "auto" (default) or "file"
+  // vdb.max_memory_mb: budget of the export (MiB), per file written. 2048 by default: a fixed
+  // number, so the layout chosen (and the files written) do not depend on the machine; the
+  // export's peak stays near it whatever the stack's length (the NLM male's level 0, ~25 GB of
+  // grids, as about 13 parts).
+  std::int64_t max_memory_mb = 2048;
 };
 
 struct Config {

@@ -3,8 +3,10 @@
 // Source: config.output (the .vpk that vispack-pack wrote), read with the format Reader, so the
 // export holds what the packed volume holds (colour cleared and CT -1024 HU outside the body,
 // crop and pack.downsample applied; levels >= 1 alpha-weighted colour, majority labels) and
-// agrees with the viewer. Level: config vdb.level, or the finest level whose estimated memory
-// fits vdb.max_memory_mb (vdb_level.h; the estimate is made before any grid is built). Grids:
+// agrees with the viewer. Level and layout (plan_vdb_export, vdb_level.h; estimated before any
+// grid is built): vdb.layout "auto" (default) exports vdb.level, or level 0, as one file when its
+// estimate fits vdb.max_memory_mb, else as parts; vdb.layout "file" exports one file, of
+// vdb.level or of the finest level whose estimate fits. Grids:
 //   "ct"     FloatGrid, HU (the .vpk's int16 ct channel), when the file has "ct"
 //   "labels" Int32Grid, label IDs (uint8 / uint16 "labels"), when the file has "labels"
 //   "rgb"    Vec3SGrid, colour r/255, g/255, b/255 of the "rgba" channel
@@ -32,7 +34,19 @@
 // the same level (the choice reads the whole packed file). Resume per part: work/vdb-parts. On a
 // cluster the parts run as one array job after the pack merge (scripts/vispack-slurm); the
 // unsharded export (vispack-run, workflow/Snakefile) writes vdb_output. Needs vdb.enabled.
-// Memory: bounded by vdb.max_memory_mb (measured against the estimate in docs/BENCHMARKS.md).
+// Parts (layout "auto", the level over the budget as one file): consecutive z slabs of the level
+// (plan_vdb_parts: whole brick rows while they fit, cut at multiples of 8 z so no leaf straddles
+// two), each estimated within vdb.max_memory_mb, built and written one after another, each a
+// complete file named and tagged as a shard's part (vdb_part_path of the stack slices it covers,
+// "vispack_part_slices", "vispack_part_z"), and then the index vdb_parts_index_path(config)
+// (JSON: level, dims, voxel size, origin, grids, the reason, and per part its file, slices, z
+// range, active voxels, leaves, bytes); vdb_output itself is not written (an earlier one is
+// removed, as are the parts an earlier index listed when one file is written). Merged (the
+// grids of one name, tree().merge()), the parts hold exactly the voxels of the one-file export.
+// The stdout line and the report ("layout", "layout_reason", "parts") say which and why. A
+// shard (--slices) exports its part of the level the whole fits (choose_vdb_level), as before.
+// Memory: bounded by vdb.max_memory_mb per file written, whatever the stack's length (the
+// packed file's pages are released after each brick is decoded; docs/BENCHMARKS.md).
 #pragma once
 
 #include "vispack/pipeline/core/config.h"
@@ -48,5 +62,9 @@ StageResult run_vdb_stage(const Config& config, const StageOptions& options);
 // The file a shard [first, last) of the stack is exported to: "<dir>/<stem>.slices-FFFF-LLLL.vdb"
 // for vdb_output "<dir>/<stem>.vdb" (4 digits at least, zero-padded).
 std::string vdb_part_path(const Config& config, int first, int last);
+
+// The index of an export written as parts: "<dir>/<stem>.parts.json" for vdb_output
+// "<dir>/<stem>.vdb".
+std::string vdb_parts_index_path(const Config& config);
 
 }  // namespace vispack::pipeline

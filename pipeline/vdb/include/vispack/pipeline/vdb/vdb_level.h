@@ -53,6 +53,8 @@ struct VdbLevelEstimate {
   double bytes = 0;
   bool exact = true;  // false: only the lower bound from uniform bricks was computed (it
                       // already exceeded the budget, so the level was not decoded)
+  // Touched leaves per layer of 8 level z slices (layer l: z in [8 l, 8 l + 8)); exact only.
+  std::vector<std::uint64_t> leaves_per_layer;
 };
 
 // Bytes per touched leaf for the grids the export writes from `reader` (rgb always, ct and labels
@@ -84,6 +86,40 @@ struct VdbLevelChoice {
 // Unset: the finest level whose estimate fits; ConfigError naming the coarsest level's estimate
 // and the budget when none fits. `config` gives the options and the file name for messages.
 VdbLevelChoice choose_vdb_level(const Config& config, const format::Reader& reader, int threads);
+
+// One part of a level written as parts: level z in [z_first, z_last) (multiples of 8 but the
+// last, so no OpenVDB leaf straddles two parts), its touched leaves and estimated peak bytes.
+struct VdbPartPlan {
+  std::int64_t z_first = 0, z_last = 0;
+  std::uint64_t leaves = 0;
+  double bytes = 0;
+};
+
+// Estimated peak resident bytes of an export that holds `leaves` touched leaves of the grids
+// `reader`'s channels give: kVdbFixedBytes + leaves * vdb_bytes_per_leaf (the payload pages
+// are released after each brick is decoded, so no mapped term).
+double vdb_part_bytes(const format::Reader& reader, std::uint64_t leaves);
+
+// Consecutive z slabs that tile the estimated level, each of at most `budget_bytes` by
+// vdb_part_bytes: whole brick rows (each brick decoded once) while they fit, else the leaf
+// layers of one row. Empty when one layer of 8 z alone is over the budget. `est` must be
+// exact (logic_error otherwise).
+std::vector<VdbPartPlan> plan_vdb_parts(const format::Reader& reader, const VdbLevelEstimate& est,
+                                        double budget_bytes);
+
+// What the export writes: one level, as one file (parts empty) or as parts, and why.
+struct VdbExportPlan {
+  VdbLevelChoice choice;
+  std::vector<VdbPartPlan> parts;  // empty: one file
+  std::string why;                 // "level 0 needs 10.5 GB as one file, over ... : 6 parts"
+};
+
+// vdb.layout "file": choose_vdb_level, one file. "auto": the level (vdb.level, or 0) as one
+// file when its estimate fits vdb.max_memory_mb, else as plan_vdb_parts' parts; with vdb.level
+// unset and not even one layer of 8 z of a level within the budget, the next coarser level.
+// ConfigError (naming the config file, the key, the estimate and the budget) when nothing fits
+// or the file has no such level.
+VdbExportPlan plan_vdb_export(const Config& config, const format::Reader& reader, int threads);
 
 // "level 1 (1024 x 608 x 48 voxels of 1 x 1 x 2 mm), 812345 active voxels in 2345 leaves,
 // estimate 123.4 MB of budget 8192 MB" (MB = MiB) for messages and the stage's stdout line.
