@@ -69,6 +69,20 @@ def plot(stacks, img):
     return "![CPU-s per slice and peak resident memory against slice count](img/full_length.png)\n"
 
 
+def vdb_cell(one_file_bytes, vdb_report):
+    """The .vdb column: the one file's size, or (level 0 written as parts) the vdb stage's bytes."""
+    level = vdb_report.get("level", "?")
+    if one_file_bytes is None and vdb_report.get("output_bytes"):
+        return f"{gb(vdb_report['output_bytes'])} (level {level}, parts)"
+    return f"{gb(one_file_bytes)} (level {level})"
+
+
+def vdb_bytes(run):
+    """Bytes of the OpenVDB export: the one file, or the parts the vdb stage wrote (0 if none)."""
+    one = run["bytes"]["vdb"]
+    return one if one is not None else run["stage_reports"].get("vdb", {}).get("output_bytes") or 0
+
+
 def titled(text, header, rows):
     """A paragraph (if any) and the table under it."""
     return ([text + "\n"] if text else []) + [table(header, rows)]
@@ -119,7 +133,7 @@ def section(data):
                          f"{tv['cpu_s'] / s['slices']:.3f}", f"{tv['peak_rss_mib']:,.0f}",
                          gb(r["read_bytes_storage"]), gb(r["io_last_sample"].get("rchar")),
                          gb(r["written_bytes_storage"]), gb(r["bytes"]["vpk"]),
-                         f"{gb(r['bytes']['vdb'])} (level {vdb.get('level', '?')})",
+                         vdb_cell(r["bytes"]["vdb"], vdb),
                          gb(r["bytes"]["work"]),
                          f"{r['load_before'][0]:.1f} / {mean(r['load_samples']):.1f}"])
     md.append(table(["stack", "slices", "page cache", "wall s", "CPU s", "CPU-s / slice",
@@ -256,7 +270,7 @@ def projection(stacks):
     flat = budget is not None and rb <= 1.1 * budget * 1.048576
     if flat:
         slope = 0.0
-    out_bps = (w["bytes"]["vpk"] + (w["bytes"]["vdb"] or 0) + w["bytes"]["work"]) / top["slices"]
+    out_bps = (w["bytes"]["vpk"] + vdb_bytes(w) + w["bytes"]["work"]) / top["slices"]
     in_bps = sum(top["generate"]["bytes"][d] for d in ("rgb", "ct", "seg")) / top["slices"]
     md = ["**Projection** (from the warm runs above; CPU and wall scale with the slices, as the curve "
           "shows; memory along the line through the 128- and the largest stack's peak):\n"]
@@ -273,7 +287,7 @@ def projection(stacks):
     if k:
         kw = run_of(k, "warm")
         kin = sum(k["generate"]["bytes"][d] for d in ("rgb", "ct", "seg")) / k["slices"]
-        kout = (kw["bytes"]["vpk"] + (kw["bytes"]["vdb"] or 0) + kw["bytes"]["work"]) / k["slices"]
+        kout = (kw["bytes"]["vpk"] + vdb_bytes(kw) + kw["bytes"]["work"]) / k["slices"]
         scale = (k["width"] * k["height"]) / (2048 * 1216)
         row(f"Visible Korean whole body, 4368×2912 (assumed {KOREAN_SLICES:,} slices)", KOREAN_SLICES,
             kw["time_v"]["cpu_s"] / k["slices"], kw["time_v"]["cpu_s"] / k["slices"] / 2, kin, kout,
