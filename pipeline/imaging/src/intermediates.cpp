@@ -12,6 +12,7 @@
 #include "vispack/pipeline/core/slice_z.h"
 #include "vispack/pipeline/core/work_layout.h"
 #include "vispack/pipeline/imaging/ct_resample.h"
+#include "vispack/pipeline/imaging/ct_shape_blend.h"
 #include "vispack/pipeline/imaging/intermediates.h"
 #include "vispack/pipeline/imaging/outline.h"
 #include "vispack/pipeline/imaging/slice_io.h"
@@ -110,6 +111,11 @@ CtSlice read_ct_slice(const Config& config, const StackInputs& inputs, int index
     const int n_below = cv::countNonZero(below), n_above = cv::countNonZero(above);
     ct.body_ends = n_below == 0 || n_above == 0 ||
                    cv::countNonZero(below & above) < 0.5 * std::min(n_below, n_above);
+    // The outline between the two: by shape, or their union for the colour to trim.
+    if (!ct.body_ends) {
+      ct.shape_hu = shape_blend_hu(hu_below, hu_above, at.w_above, level);
+      ct.envelope_hu = cv::max(hu_below, hu_above);
+    }
     // Continuity along z: a part must be in both CT slices of the blend.
     ct.z.tissue = {ct_tissue(neighbour_size(hu_below, below_path), level),
                    ct_tissue(neighbour_size(hu_above, above_path), level)};

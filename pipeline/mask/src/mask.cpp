@@ -187,6 +187,13 @@ MaskSlice compute_mask(const cv::Mat& rgb, const cv::Mat* ct_hu, const cv::Matx2
   if (!ct_hu) {
     result.mask = colour_body_mask(rgb, result.gel, options.gel_distance, options.opening_px,
                                    min_part_px, &result.parts);
+    // The threshold keeps edge pixels barely covered by tissue (11–15 % too much body on the
+    // anatomy phantom's tips): those less than half covered go (step 4's test, in its band).
+    cv::Mat core;
+    cv::erode(result.mask, core, disc(int(kGelBandPx)), cv::Point(-1, -1), 1, cv::BORDER_CONSTANT,
+              cv::Scalar(0));
+    result.mask =
+        remove_edge_gel(result.mask, rgb, result.gel, options.gel_distance, result.mask & ~core);
   } else {
     const cv::Mat hu = ct_hu_float(*ct_hu);
     const double level = mask_edge_level_hu(options.hu_threshold);

@@ -69,6 +69,9 @@ std::string MaskStageJob::input_fingerprint(int k) const {
       if (j >= 0 && j < int(inputs_.ct.size())) fp.text("z").file(inputs_.ct[std::size_t(j)].path);
   if (at.inside() && !at.exact())
     fp.text("above").number(at.w_above).file(inputs_.ct[std::size_t(at.above)].path);
+  // The colour-only mask's edge at the half-covered level; between CT slices the outlines'
+  // union trimmed by the colour, or by shape (mask.h): a CT slice's own mask is unchanged.
+  if (!at.inside() || !at.exact()) fp.text("edge-v2");
   return fp.str();
 }
 
@@ -88,7 +91,8 @@ cv::Mat MaskStageJob::compute(int k, const cv::Mat& rgb, const CtSlice& ct, cv::
   const std::vector<std::string> outs = outputs(k);
   // At a body's tip between two CT slices the colour alone (CtSlice::body_ends); a black colour
   // slice has no colour: the CT's blend there.
-  const bool tip = ct.body_ends && !inputs_.transforms.slices[std::size_t(k)].black;
+  const bool black = inputs_.transforms.slices[std::size_t(k)].black;
+  const bool tip = ct.body_ends && !black;
   const bool has_ct = !ct.hu.empty() && !tip;
   const bool write_ct = outs.size() > 2;
   // A CT copy from an earlier run with work.write_ct must not outlive the slice it shows.
@@ -97,7 +101,10 @@ cv::Mat MaskStageJob::compute(int k, const cv::Mat& rgb, const CtSlice& ct, cv::
     fs::remove(mask_ct_path(config_, k), ec);
   }
   std::uint64_t bytes = rgb.total() * rgb.elemSize();
-  const cv::Mat& ct_hu = ct.hu;
+  // Between two CT slices that show one body: their outlines' union for the colour to trim, or
+  // without refinement the outline interpolated by shape (CtSlice::envelope_hu, shape_hu).
+  const bool refine = config_.mask.refine_gel && !black;
+  const cv::Mat& ct_hu = ct.shape_hu.empty() ? ct.hu : refine ? ct.envelope_hu : ct.shape_hu;
   if (has_ct) {
     bytes += ct_hu.total() * 2;
   } else {
@@ -107,7 +114,7 @@ cv::Mat MaskStageJob::compute(int k, const cv::Mat& rgb, const CtSlice& ct, cv::
   const auto t0 = std::chrono::steady_clock::now();
   // A black (lost) colour slice has no colour to refine with: its mask is the CT's alone.
   MaskOptions mask_options = config_.mask;
-  if (inputs_.transforms.slices[std::size_t(k)].black) mask_options.refine_gel = false;
+  if (black) mask_options.refine_gel = false;
   MaskSlice m = compute_mask(rgb, has_ct ? &ct_hu : nullptr, ct.out_to_ct, mask_options,
                              config_.spacing_mm[0] * config_.spacing_mm[1], &ct.z);
   compute_ns_ +=

@@ -46,6 +46,14 @@ struct CtSlice {
   // one has none, or they overlap by less than half the smaller): a body's tip, which the blend
   // loses (a third of the way for soft tissue). The mask stage takes the colour alone there.
   bool body_ends = false;
+  // With `for_mask`, between two CT slices that show one body (not body_ends), the CT for the
+  // body mask (`hu` stays the HU blend: the packed ct channel). `shape_hu`: the two slices'
+  // outlines interpolated by shape (ct_shape_blend.h), for a mask the colour does not refine;
+  // `envelope_hu`: the larger HU of the two (their outlines' union: where the body may be), for
+  // a mask the colour refines (mask.h step 4 trims it to the colour's edge). Empty otherwise: the
+  // mask takes `hu`. docs/ARCHITECTURE.md "Each input at its own z" has the comparison.
+  cv::Mat shape_hu;
+  cv::Mat envelope_hu;
   // With `for_mask`: the neighbouring CT slices' tissue for the part rule's continuity along z
   // (outline.h ZNeighbours): beside CT slice j, j − 1 and j + 1; between two, those two.
   ZNeighbours z;
