@@ -2,9 +2,14 @@
 //
 // The mask of output slice k comes from the CT, because colour thresholding alone fails in the
 // translucent blue gel (tissue shows through it, fiducial tubes of another colour sit in it):
-//   1. The CT at slice k's z in HU (slice_z.h: linear between the CT slices around it): HU > L,
-//      the edge level L = mask_edge_level_hu: mask.hu_threshold, but never above
-//      kAirTissueMidpointHu (−500 HU).
+//   1. The CT at slice k's z in HU (slice_z.h): HU > L, the edge level L = mask_edge_level_hu:
+//      mask.hu_threshold, but never above kAirTissueMidpointHu (−500 HU). On a CT slice, that
+//      slice. Between two CT slices that show one body (the mask stage's choice, intermediates.h
+//      CtSlice): with the gel refinement (step 4) the larger HU of the two, i.e. the union of
+//      their outlines, where the body may be, for the colour to trim to where it is; without it
+//      (mask.refine_gel false, a black colour slice) their outlines interpolated by signed
+//      distance (ct_shape_blend.h). Not the HU blend: it keeps the nearer slice's outline until
+//      half way, then jumps (docs/ARCHITECTURE.md "Each input at its own z").
 //   2. Detach what merely touches the body (head-holder, table): an opening of radius
 //      kCtDetachPx CT pixels (removes structures thinner than about 2·kCtDetachPx), every part
 //      that is body by the part rule (outline.h: not smaller than mask.min_part_mm2, not thin and
@@ -27,9 +32,13 @@
 //   5. Where step 4 removed pixels: an opening of mask.opening_px output pixels (removing gel
 //      connected to the outside opens no holes). Without refinement: the opening, the part
 //      rule's minimum area and holes filled, on the carried CT mask.
-// Without CT (no "ct" in the config, or a slice beyond the CT stack) the mask is colour-only:
-// distance to the gel > gel_distance, the opening, the part rule with its colour test (gel and
-// green fiducial tubes are not tissue-coloured), holes filled.
+// Without CT (no "ct" in the config, a slice beyond the CT stack, or a body's tip between a CT
+// slice with body and one without) the mask is colour-only: distance to the gel > gel_distance,
+// the opening, the part rule with its colour test (gel and green fiducial tubes are not
+// tissue-coloured), holes filled; then step 4's test on its own edge band (always, whatever
+// mask.refine_gel): the threshold keeps edge pixels barely covered by tissue and gel tinted by
+// the tissue next to it (1 px too much all round, 11–15 % of a small section), so the edge pixels
+// less than half covered that connect to the outside go.
 //
 // Where the edge was lost before (docs/BENCHMARKS.md, 'Mask edge against independent truth'): a CT
 // edge is a partial-volume ramp (pixel size, PSF, and along z the slab over which a tapering
