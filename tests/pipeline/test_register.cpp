@@ -655,6 +655,29 @@ TEST(RegisterStage, ShardDrawsTheOverlayFromTheRecordedPicture) {
   EXPECT_THROW(vp::run_register_stage(config, options), vispack::InputError);
 }
 
+// The `tiny` phantom (96×64, 24 slices, CT 2× coarser: the quick benchmark's stack, seed 1, and
+// seed 3), scored against its truth: over the truth body, docs/GOALS.md §6's cumulative error
+// for CT 2× coarser, ≤ 0.5 px RMS (measured 0.26 px, seed 1; 0.20, seed 3), the jump found and no
+// false one. The frame's RMS (corners and centre; 0.50 / 0.38 px) is not bounded here: seed 1's
+// 0.504 px is over that goal by its corners' lever on the anchors' common bias (docs/BENCHMARKS.md,
+// "Registration anchored on the CT", the `tiny` rows).
+TEST(RegisterStage, TinyPhantomDriftOverTheBodyWithinTheGoal) {
+  for (int seed : {1, 3}) {
+    SCOPED_TRACE("seed " + std::to_string(seed));
+    TempDir dir("vispack-tiny-drift");
+    const vp::Config config = vispack::test::make_phantom_case(dir.path(), "tiny", seed);
+    vp::run_register_stage(config, vispack::test::quiet_stage_options());
+    const vph::Score score = vph::score_work(dir / "truth", config.work_dir);
+    std::printf("tiny, seed %d: drift rms %.3f px (max %.3f), over the body %.3f px (max %.3f)\n",
+                seed, score.drift.rms_px, score.drift.max_px, score.drift.over_body_rms_px,
+                score.drift.over_body_max_px);
+    EXPECT_EQ(score.drift.scored, 24);
+    EXPECT_LE(score.drift.over_body_rms_px, 0.5);
+    EXPECT_EQ(score.jumps.found, 1);
+    EXPECT_EQ(score.jumps.false_jumps, 0);
+  }
+}
+
 // A block jump smaller than register.jump_px (3..6 px, with its 2..4° rotation): the two anchors
 // and the pair between them agree on the step, so the walk prior is cut there instead of
 // spreading the step over the stack (docs/ARCHITECTURE.md, "Registration"; BENCHMARKS
