@@ -544,10 +544,11 @@ TEST(Register, FiducialsStopTheRandomWalk) {
   EXPECT_LT(worst_with, 0.1);
 }
 
-// The QC overlay of a slice whose pairs the run computed is drawn from the small picture kept
-// from that read (one decode per slice); with work.write_registered the full-size
-// registered slice is decoded, warped and downsampled instead. Both pictures show the same
-// registered slice: measured mean difference 0.5 grey levels (small phantom, slice 10).
+// The QC overlay of a slice whose pairs the run computed is drawn from the small picture written
+// with its record as the slice was read (one decode per slice, no picture held in memory between
+// the record and the overlay); with work.write_registered the full-size registered slice is
+// decoded, warped and downsampled instead. Both pictures show the same registered slice:
+// measured mean difference 0.5 grey levels (small phantom, slice 10).
 TEST(RegisterStage, OverlayFromTheKeptPictureMatchesTheFullSizePath) {
   TempDir dir;
   vp::Config config = vispack::test::make_phantom_case(dir.path(), "small", 1, 12);
@@ -557,6 +558,13 @@ TEST(RegisterStage, OverlayFromTheKeptPictureMatchesTheFullSizePath) {
   config.work.write_registered = false;
   vp::run_register_stage(config, options);
   const cv::Mat kept = vp::read_slice(overlay);
+  // The unsharded run wrote the picture beside the record that names it.
+  const std::string picture = vp::slice_output_path(config, "register", "pairs/picture", 10, "png");
+  ASSERT_TRUE(std::filesystem::exists(picture));
+  EXPECT_EQ(nlohmann::json::parse(vispack::read_file(vp::slice_output_path(
+                                      config, "register", "pairs/pairs", 10, "json")))
+                .value("picture", ""),
+            vp::file_identity(picture));
   config.work.write_registered = true;
   vp::run_register_stage(config, options);
   const cv::Mat full = vp::read_slice(overlay);
@@ -615,7 +623,7 @@ TEST(RegisterStage, RecordsOnlyShardsMeasureOnly) {
 // solve (a cluster's per-slice job, another process) draws the QC overlay from it, without
 // decoding the full-size slice: slice 3's file is overwritten with garbage of the same size and
 // mtime (its identity, so its record stays valid) and the overlay is still drawn, byte-identical
-// to the one an unsharded run draws from its in-memory picture. A picture that is not the one
+// to the one an unsharded run draws from its own recorded picture. A picture that is not the one
 // recorded (rewritten: new identity) is not used: the run decodes the slice and fails on it.
 TEST(RegisterStage, ShardDrawsTheOverlayFromTheRecordedPicture) {
   TempDir whole_dir, dir;
@@ -645,6 +653,29 @@ TEST(RegisterStage, ShardDrawsTheOverlayFromTheRecordedPicture) {
   vispack::write_file_atomic(picture, vispack::read_file(picture));
   std::filesystem::remove(overlay);
   EXPECT_THROW(vp::run_register_stage(config, options), vispack::InputError);
+}
+
+// The `tiny` phantom (96×64, 24 slices, CT 2× coarser: the quick benchmark's stack, seed 1, and
+// seed 3), scored against its truth: over the truth body, docs/GOALS.md §6's cumulative error
+// for CT 2× coarser, ≤ 0.5 px RMS (measured 0.26 px, seed 1; 0.20, seed 3), the jump found and no
+// false one. The frame's RMS (corners and centre; 0.50 / 0.38 px) is not bounded here: seed 1's
+// 0.504 px is over that goal by its corners' lever on the anchors' common bias (docs/BENCHMARKS.md,
+// "Registration anchored on the CT", the `tiny` rows).
+TEST(RegisterStage, TinyPhantomDriftOverTheBodyWithinTheGoal) {
+  for (int seed : {1, 3}) {
+    SCOPED_TRACE("seed " + std::to_string(seed));
+    TempDir dir("vispack-tiny-drift");
+    const vp::Config config = vispack::test::make_phantom_case(dir.path(), "tiny", seed);
+    vp::run_register_stage(config, vispack::test::quiet_stage_options());
+    const vph::Score score = vph::score_work(dir / "truth", config.work_dir);
+    std::printf("tiny, seed %d: drift rms %.3f px (max %.3f), over the body %.3f px (max %.3f)\n",
+                seed, score.drift.rms_px, score.drift.max_px, score.drift.over_body_rms_px,
+                score.drift.over_body_max_px);
+    EXPECT_EQ(score.drift.scored, 24);
+    EXPECT_LE(score.drift.over_body_rms_px, 0.5);
+    EXPECT_EQ(score.jumps.found, 1);
+    EXPECT_EQ(score.jumps.false_jumps, 0);
+  }
 }
 
 // A block jump smaller than register.jump_px (3..6 px, with its 2..4° rotation): the two anchors

@@ -545,6 +545,15 @@ class VdbLevels : public ::testing::Test {
 };
 test::TempDir* VdbLevels::dir_ = nullptr;
 
+// A budget (MiB) that holds about a third of level 0's leaves per part: level 0 is over it.
+std::int64_t third_of_level_zero_mb(const format::Reader& reader) {
+  const VdbLevelEstimate e = estimate_vdb_level(reader, 0, 2);
+  const std::int64_t budget = std::int64_t(
+      std::ceil(mib(kVdbFixedBytes + double(e.leaves) * vdb_bytes_per_leaf(reader) / 3)));
+  EXPECT_LT(double(budget), mib(e.bytes)) << "level 0 would fit as one file";
+  return budget;
+}
+
 StageOptions quiet_stage() {
   StageOptions o;
   o.quiet = true;
@@ -728,12 +737,8 @@ TEST_F(VdbLevels, PartsOverTheBudgetHoldTheOneFileExport) {
   const auto whole_labels = active_voxels(*read_grid<openvdb::Int32Grid>(one.vdb_output, "labels"));
   ASSERT_GT(whole_rgb.size(), 10000u);
 
-  // A budget that holds about a third of level 0's leaves per part.
   const format::Reader reader = format::Reader::open(one.output);
-  const VdbLevelEstimate e = estimate_vdb_level(reader, 0, 2);
-  const std::int64_t budget = std::int64_t(
-      std::ceil(mib(kVdbFixedBytes + double(e.leaves) * vdb_bytes_per_leaf(reader) / 3)));
-  ASSERT_LT(double(budget), mib(e.bytes)) << "level 0 would fit as one file";
+  const std::int64_t budget = third_of_level_zero_mb(reader);
   const Config config = config_with({{"max_memory_mb", budget}}, "parts.vdb");
   const StageResult r = run_vdb_stage(config, quiet_stage());
   const std::string index = vdb_parts_index_path(config);
@@ -794,6 +799,101 @@ TEST_F(VdbLevels, PartsOverTheBudgetHoldTheOneFileExport) {
   EXPECT_FALSE(fs::exists(index));
   for (const auto& p : parts)
     EXPECT_FALSE(fs::exists(fs::path(index).parent_path() / p["file"].get<std::string>()));
+}
+
+// The cluster path (shards, --slices A:B) over the budget exports the asked level as the same
+// parts as one process: every shard plans the same parts and writes those that start in its
+// slices' level z range; the last shard to finish writes the index, the same text as the one
+// process's (same files, sizes, leaves, reason). Each part holds the one process's voxels; each
+// shard's report says the level, the layout and why.
+TEST_F(VdbLevels, ShardsWriteTheSamePartsAsOneProcess) {
+  const Config config = config_with(
+      {{"max_memory_mb",
+        third_of_level_zero_mb(format::Reader::open(load_config(*dir_ / "config.json").output))}},
+      "sharded.vdb");
+  const std::string index = vdb_parts_index_path(config);
+  const fs::path out = fs::path(index).parent_path();
+  // The part files of this export in the output folder, by name.
+  auto part_files = [&] {
+    std::vector<std::string> names;
+    for (const auto& f : fs::directory_iterator(out))
+      if (f.path().filename().string().rfind("sharded.slices-", 0) == 0)
+        names.push_back(f.path().filename().string());
+    std::sort(names.begin(), names.end());
+    return names;
+  };
+  struct Voxels {
+    std::map<std::array<int, 3>, openvdb::Vec3s> rgb;
+    std::map<std::array<int, 3>, float> ct;
+    std::map<std::array<int, 3>, int> labels;
+    bool operator==(const Voxels& o) const {
+      return rgb == o.rgb && ct == o.ct && labels == o.labels;
+    }
+  };
+  openvdb::initialize();
+  auto read_parts = [&] {
+    std::map<std::string, Voxels> parts;
+    for (const auto& name : part_files()) {
+      const std::string path = out / name;
+      parts[name] = {active_voxels(*read_grid<openvdb::Vec3SGrid>(path, "rgb")),
+                     active_voxels(*read_grid<openvdb::FloatGrid>(path, "ct")),
+                     active_voxels(*read_grid<openvdb::Int32Grid>(path, "labels"))};
+    }
+    return parts;
+  };
+
+  // One process.
+  ASSERT_EQ(run_vdb_stage(config, quiet_stage()).output, index);
+  const std::string one_index = read_file(index);
+  const auto one_parts = read_parts();
+  ASSERT_GE(one_parts.size(), 3u);
+  for (const auto& [name, voxels] : one_parts)
+    fs::remove(out / name);
+  fs::remove(index);
+
+  // Three shards whose bounds are not the parts' (one may own no part).
+  const std::vector<std::pair<int, int>> shards = {{0, 10}, {10, 41}, {41, 64}};
+  for (std::size_t s = 0; s < shards.size(); ++s) {
+    const auto [a, b] = shards[s];
+    SCOPED_TRACE(cat("shard ", a, ":", b));
+    StageOptions so = quiet_stage();
+    so.slices = cat(a, ":", b);
+    const StageResult r = run_vdb_stage(config, so);
+    EXPECT_EQ(r.processed, 1);
+    const bool last = s + 1 == shards.size();
+    EXPECT_EQ(fs::exists(index), last) << "the index before every part was written";
+    if (last) {
+      EXPECT_EQ(r.output, index);
+    }
+    const auto report = nlohmann::json::parse(
+        read_file(cat(config.work_dir, "/vdb-parts/report-", a, "-", b, ".json")));
+    EXPECT_EQ(report["level"], 0);
+    EXPECT_EQ(report["layout"], "parts");
+    EXPECT_NE(report["layout_reason"].get<std::string>().find("level 0 needs"), std::string::npos)
+        << report["layout_reason"];
+    EXPECT_NE(report["layout_reason"].get<std::string>().find("over vdb.max_memory_mb"),
+              std::string::npos)
+        << report["layout_reason"];
+    EXPECT_EQ(report["parts_planned"], one_parts.size());
+    EXPECT_EQ(report["index_complete"], last);
+    std::printf("shard %d:%d wrote %zu of %zu parts\n", a, b, report["parts"].size(),
+                one_parts.size());
+    EXPECT_EQ(run_vdb_stage(config, so).processed, 0) << "not up to date on a rerun";
+  }
+  EXPECT_EQ(read_file(index), one_index) << "the shards' index differs from one process's";
+  const auto sharded_parts = read_parts();
+  ASSERT_EQ(sharded_parts.size(), one_parts.size());
+  for (const auto& [name, voxels] : one_parts) {
+    ASSERT_TRUE(sharded_parts.count(name)) << name << ": not written by the shards";
+    EXPECT_TRUE(sharded_parts.at(name) == voxels) << name << ": voxels differ";
+  }
+  EXPECT_FALSE(fs::exists(config.vdb_output));
+  // The index missing, a shard found up to date writes it again from the records.
+  fs::remove(index);
+  StageOptions so = quiet_stage();
+  so.slices = "0:10";
+  EXPECT_EQ(run_vdb_stage(config, so).output, index);
+  EXPECT_EQ(read_file(index), one_index);
 }
 
 // vdb.level over the budget: a ConfigError naming the key, the level, the estimate and the

@@ -185,6 +185,18 @@ bool StageRun::up_to_date(int index, const std::string& input_fingerprint,
   return true;
 }
 
+std::vector<std::string> StageRun::recorded_outputs(int index) const {
+  std::vector<std::string> outputs;
+  std::lock_guard<std::mutex> lock(mutex_);
+  auto it = previous_.find(std::to_string(index));
+  if (it == previous_.end() || !it->is_object() || !it->contains("outputs") ||
+      !it->at("outputs").is_object())
+    return outputs;
+  for (auto& [path, id] : it->at("outputs").items())
+    outputs.push_back(path);
+  return outputs;
+}
+
 bool StageRun::all_up_to_date() const {
   if (options_.force) return false;
   for (int k = range_.first; k < range_.last; ++k) {

@@ -31,8 +31,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-constexpr int kOverlayEdge = 512;                     // longer edge of the QC overlay, px
-constexpr std::size_t kSmallCacheBytes = 256u << 20;  // overlay pictures kept between phases
+constexpr int kOverlayEdge = 512;  // longer edge of the QC overlay, px
 // The CT body fraction of the working grid under which estimate_ct_anchor finds nothing to anchor
 // on (ct_anchor.cpp): the report's "no body in the CT".
 constexpr double kAnchorMinBody = 1e-3;
@@ -64,11 +63,13 @@ std::string pairs_path(const Config& config, int k) {
   return slice_output_path(config, "register", "pairs/pairs", k, "json");
 }
 
-// A sharded run's overlay picture of slice k (overlay_picture, lossless PNG), written with its
-// pair record: the shard that later draws the slice's QC overlay (after the solve, in another
-// process) warps it instead of decoding and warping the full-size slice again (~0.1 s a slice
-// at 2048x1216). The record holds the picture's identity ("picture"), so a picture that is not
-// the one written with the record is never used.
+// The overlay picture of slice k (overlay_picture, lossless PNG), written with its pair record
+// as the slice is read for it: the run that later draws the slice's QC overlay (after the solve:
+// the same run, or a later shard in another process) warps it instead of decoding and warping
+// the full-size slice again (~0.1 s a slice at 2048x1216), and no run holds the pictures of its
+// range in memory between the two (docs/BENCHMARKS.md "Memory as the work grows, per stage").
+// The record holds the picture's identity ("picture"), so a picture that is not the one written
+// with the record is never used.
 std::string picture_path(const Config& config, int k) {
   return slice_output_path(config, "register", "pairs/picture", k, "png");
 }
@@ -129,7 +130,7 @@ void warn(const StageOptions& options, const std::string& message) {
 }
 
 // What the steps of one register run share: its inputs, options and StageRun, the records'
-// fingerprints, the bytes read, and the overlay pictures kept from the records' reads.
+// fingerprints and the bytes read.
 struct RegisterRun {
   RegisterRun(const Config& config_, const StageOptions& options_,
               const std::vector<SliceFile>& files_, const RegisterOptions& reg_, bool anchored_,
@@ -164,12 +165,6 @@ struct RegisterRun {
   AnchorOptions anchor_options;
   std::vector<std::string> fingerprints;
   std::atomic<std::uint64_t> bytes{0};
-  // The QC overlay's picture of each slice whose pairs this run computes, kept from that read
-  // (each colour slice decoded once per run, not again for its overlay). Bounded: larger ranges
-  // read their slices again. A sharded or records-only run also writes them with the records
-  // (the overlays may be drawn by a later run; a records-only run keeps none).
-  bool write_pictures = false, keep_small = false;
-  std::vector<cv::Mat> small;
 
   const std::string& fingerprint(int k) {
     std::string& f = fingerprints[std::size_t(k)];
@@ -178,8 +173,8 @@ struct RegisterRun {
   }
 };
 
-// Slice k read for its records (its size checked against the stack's), its overlay picture kept
-// or written, prepared for registration.
+// Slice k read for its records (its size checked against the stack's), its overlay picture
+// written (picture_path), prepared for registration.
 RegisterFrame read_frame(RegisterRun& r, int k, cv::Size stack_size, double anchor_scale) {
   const auto& files = r.files;
   cv::Mat slice = read_slice(files[std::size_t(k)].path, r.config.rgb.raw);
@@ -188,11 +183,8 @@ RegisterFrame read_frame(RegisterRun& r, int k, cv::Size stack_size, double anch
                          ", the stack (", files[0].path, ") is ", stack_size.width, "x",
                          stack_size.height));
   r.bytes += slice.total() * slice.elemSize();
-  if ((r.keep_small || r.write_pictures) && k >= r.range.first && k < r.range.last) {
-    cv::Mat picture = overlay_picture(slice, kOverlayEdge);
-    if (r.write_pictures) write_work_image(picture_path(r.config, k), picture);
-    if (r.keep_small) r.small[std::size_t(k)] = std::move(picture);
-  }
+  if (k >= r.range.first && k < r.range.last)
+    write_work_image(picture_path(r.config, k), overlay_picture(slice, kOverlayEdge));
   return prepare_frame(slice, r.reg, anchor_scale);
 }
 
@@ -241,8 +233,7 @@ int measure_records(RegisterRun& r) {
   for (const auto& p : computed) {
     nlohmann::json j = to_json(p);
     j["fingerprint"] = r.fingerprint(p.index);
-    if (r.write_pictures && range.contains(p.index))
-      j["picture"] = file_identity(picture_path(config, p.index));
+    if (range.contains(p.index)) j["picture"] = file_identity(picture_path(config, p.index));
     write_file_atomic(pairs_path(config, p.index), j.dump(1) + "\n");
   }
   return int(computed.size());
@@ -456,7 +447,7 @@ void solve_records(RegisterRun& r) {
 }
 
 // Slice k's QC overlay (and, with work.write_registered, its full-size registered copy), unless
-// up to date: warped from the picture kept from the records' read when there is one, else from
+// up to date: warped from the picture written with its record when there is one, else from
 // the registered colour (intermediates.h registered_colour, the one implementation the later
 // stages call too).
 void write_slice_outputs(RegisterRun& r, const StackTransforms& st, const StackInputs& inputs,
@@ -492,10 +483,9 @@ void write_slice_outputs(RegisterRun& r, const StackTransforms& st, const StackI
   cv::Mat hu;
   if (at.inside() && st.ct_to_rgb) hu = ct_hu_at_colour_slice(config, ct_files, k);
   const Similarity ct_to_rgb = st.ct_to_rgb ? *st.ct_to_rgb : Similarity{};
-  cv::Mat kept = r.keep_small ? r.small[std::size_t(k)] : cv::Mat();
-  if (kept.empty() && !write_registered) kept = recorded_picture(config, k);
-  if (!kept.empty() && !write_registered) {
-    // The overlay warped from the kept picture: the same slice, transform and outline as
+  const cv::Mat kept = write_registered ? cv::Mat() : recorded_picture(config, k);
+  if (!kept.empty()) {
+    // The overlay warped from the recorded picture: the same slice, transform and outline as
     // below, without decoding and warping the full-size slice again.
     const cv::Mat registered_small = warp_picture(kept, t.rigid, grid_size(inputs.transforms));
     write_work_image(overlay,
@@ -577,11 +567,6 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
     r.anchor_options.min_part_ct_px = config.mask.min_part_mm2 / (config.ct->pixel_spacing_mm[0] *
                                                                   config.ct->pixel_spacing_mm[1]);
   r.fingerprints.resize(static_cast<std::size_t>(n));
-  r.write_pictures = run.sharded() || options.records_only;
-  r.keep_small =
-      !options.records_only && std::int64_t(r.range.size()) * kOverlayEdge * kOverlayEdge * 3 <=
-                                   std::int64_t(kSmallCacheBytes);
-  r.small.resize(r.keep_small ? std::size_t(n) : 0);
 
   // 1. Per-slice records of the range.
   const int pairs_computed = measure_records(r);

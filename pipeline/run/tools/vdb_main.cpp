@@ -14,9 +14,11 @@ int main(int argc, char** argv) {
       "hold exactly the one file's voxels); vdb.layout \"file\": one file always, of vdb.level "
       "or the finest level that fits (a vdb.level over the budget is a config error). Prints "
       "the level and the layout chosen and why (also in work/vdb/report.json and the files' "
-      "metadata). With --slices A:B (a "
-      "shard): the part of that level the stack slices [A, B) cover, written to <vdb_output "
-      "stem>.slices-AAAA-BBBB.vdb; the parts of shards that tile the stack hold exactly the "
-      "voxels of the whole export.",
+      "metadata). With --slices A:B (a shard; every shard plans the same level and layout): "
+      "a level that fits as one file, the part of it the stack slices [A, B) cover, written to "
+      "<vdb_output stem>.slices-AAAA-BBBB.vdb (the parts of shards that tile the stack hold "
+      "exactly the voxels of the one file); a level over the budget, the planned parts that "
+      "start in those slices, and the shard that completes the set writes <vdb_output "
+      "stem>.parts.json: the same files and index as one process writes.",
       vispack::pipeline::run_vdb_stage);
 }

@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
+#include <map>
 #include <memory>
 #include <optional>
 #include <stdexcept>
@@ -357,6 +358,15 @@ openvdb::GridPtrVec named_grids(const ExportGrids& grids, const ExportChannels& 
   return out;
 }
 
+// The names of the grids named_grids gives for `channels`, in the same order.
+std::vector<std::string> grid_names(const ExportChannels& channels) {
+  std::vector<std::string> names;
+  if (channels.ct) names.push_back("ct");
+  if (channels.labels) names.push_back("labels");
+  names.push_back("rgb");
+  return names;
+}
+
 // One file written: its path, the level part it holds, the stack slices that part covers.
 struct WrittenPart {
   std::string path;
@@ -425,8 +435,11 @@ void report_export(StageRun& run, const Config& config, const std::string& outpu
     run.set_report("part_z", {written[0].part.z_first, written[0].part.z_last});
   }
   const bool parts = !plan.parts.empty();
-  run.set_report("layout", parts ? "parts" : "file");
-  run.set_report("layout_reason", plan.why);
+  run.set_report("layout", parts ? "parts" : sharded ? "shard part" : "file");
+  run.set_report("layout_reason",
+                 parts || !sharded
+                     ? plan.why
+                     : plan.why + "; a shard (--slices) writes the part of it its slices cover");
   if (parts) {
     nlohmann::json list = nlohmann::json::array();
     for (const auto& w : written)
@@ -469,31 +482,155 @@ void remove_file(const std::string& path) {
 }
 
 // The parts' index, "<vdb_output stem>.parts.json": how to open the export (merge the parts'
-// grids of one name: their leaves are disjoint) and what each part holds.
-std::string parts_index_text(const Config& config, const VdbExportPlan& plan,
-                             const format::LevelInfo& info, const std::vector<WrittenPart>& written,
-                             const std::vector<std::string>& grids) {
+// grids of one name: their leaves are disjoint) and what each part holds. The header is all
+// of it but "parts": the same for every process that follows the same plan (a shard's too).
+nlohmann::json parts_index_header(const Config& config, const VdbExportPlan& plan,
+                                  const format::LevelInfo& info,
+                                  const std::vector<std::string>& grids) {
   const nlohmann::json names = grids;
+  return {{"vispack_version", version_string()},
+          {"source", fs::path(config.output).filename().string()},
+          {"level", plan.choice.level},
+          {"level_choice", plan.choice.automatic ? "auto" : "vdb.level"},
+          {"dims", info.dims},
+          {"voxel_size_mm", info.spacing_mm},
+          {"origin_mm", info.origin_mm},
+          {"grids", names},
+          {"reason", plan.why},
+          {"max_memory_mb", config.vdb.max_memory_mb},
+          {"how_to_open",
+           "each part is a complete OpenVDB file of the same grids, transform and metadata, "
+           "holding the level's z range \"z\" (index space); the parts' leaves are disjoint, so "
+           "merging the grids of one name (tree().merge) gives the whole level"}};
+}
+
+std::string parts_index_text(nlohmann::json header, const nlohmann::json& parts) {
+  header["parts"] = parts;
+  return header.dump(2) + "\n";
+}
+
+std::string parts_index_text(const nlohmann::json& header,
+                             const std::vector<WrittenPart>& written) {
   nlohmann::json list = nlohmann::json::array();
   for (const auto& w : written)
     list.push_back(part_json(w));
-  const nlohmann::json j = {
-      {"vispack_version", version_string()},
-      {"source", fs::path(config.output).filename().string()},
-      {"level", plan.choice.level},
-      {"level_choice", plan.choice.automatic ? "auto" : "vdb.level"},
-      {"dims", info.dims},
-      {"voxel_size_mm", info.spacing_mm},
-      {"origin_mm", info.origin_mm},
-      {"grids", names},
-      {"reason", plan.why},
-      {"max_memory_mb", config.vdb.max_memory_mb},
-      {"how_to_open",
-       "each part is a complete OpenVDB file of the same grids, transform and metadata, holding "
-       "the level's z range \"z\" (index space); the parts' leaves are disjoint, so merging the "
-       "grids of one name (tree().merge) gives the whole level"},
-      {"parts", list}};
-  return j.dump(2) + "\n";
+  return parts_index_text(header, list);
+}
+
+// The file names of the plan's parts (what vdb_part_path gives for the slices each covers).
+struct PlannedPart {
+  VdbPartPlan plan;
+  SliceRange covers;
+  std::string path;
+};
+
+std::vector<PlannedPart> planned_parts(const Config& config, const VdbExportPlan& plan,
+                                       std::int64_t depth, int stack) {
+  std::vector<PlannedPart> out;
+  for (const VdbPartPlan& p : plan.parts) {
+    const SliceRange covers{slice_of_level_z(p.z_first, depth, stack),
+                            slice_of_level_z(p.z_last, depth, stack)};
+    out.push_back({p, covers, vdb_part_path(config, covers.first, covers.last)});
+  }
+  return out;
+}
+
+// Builds and writes one planned part (the grids freed before it returns).
+WrittenPart write_planned_part(const Config& config, const format::Reader& reader,
+                               const VdbLevelChoice& choice, const ExportChannels& channels,
+                               const PlannedPart& p, StageRun& run,
+                               std::vector<std::string>* names) {
+  run.remove_stale_temporaries_of(p.path);
+  const LevelPart part =
+      level_part_z(reader, channels.rgba, choice.level, p.plan.z_first, p.plan.z_last);
+  WrittenPart w = write_level_part(config, reader, choice, channels, part, true, p.covers, p.path,
+                                   run.threads(), names);
+  w.estimated_bytes = p.plan.bytes;
+  // The part's grids are freed; glibc keeps much of it in the builder threads' arenas, which
+  // the next part's threads did not reuse (2048x1216, two parts: the second peaked 40 % above
+  // the first): hand it back before the next part is built.
+  malloc_trim(0);
+  return w;
+}
+
+void print_part(const StageOptions& options, std::size_t i, std::size_t n, const WrittenPart& w) {
+  if (options.quiet) return;
+  std::printf("vdb: part %zu/%zu: z %lld:%lld (slices %d:%d), %llu leaves -> %s\n", i + 1, n,
+              (long long)w.part.z_first, (long long)w.part.z_last, w.slices.first, w.slices.last,
+              (unsigned long long)w.leaves, w.path.c_str());
+  std::fflush(stdout);
+}
+
+// A shard's record of one part it wrote, in its stage folder (work/vdb-parts/part-<file>.json):
+// the plan's key (the packed file and the stage hash, from which the plan follows), the index
+// header, the part count and the part's index entry. The shard that finds every part of the
+// plan recorded (and its file there, of the recorded size) writes the index from them.
+std::string part_record_path(const StageRun& run, const WrittenPart& w) {
+  return run.dir() + "/part-" + fs::path(w.path).filename().string() + ".json";
+}
+
+// Writes the index from the records of `key` when they list every part of the plan, their files
+// present: true when the index is complete (written now, or already holding that text).
+bool complete_parts_index(const std::string& records_dir, const std::string& key,
+                          const std::string& index) {
+  std::optional<nlohmann::json> header;
+  std::size_t count = 0;
+  std::map<std::int64_t, nlohmann::json> parts;  // by first z
+  std::error_code ec;
+  for (fs::directory_iterator it(records_dir, ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string name = it->path().filename().string();
+    if (name.rfind("part-", 0) != 0 || it->path().extension() != ".json") continue;
+    try {
+      const auto record = nlohmann::json::parse(read_file(it->path().string()));
+      if (record.at("key") != key) continue;
+      const auto& p = record.at("part");
+      const fs::path file = fs::path(index).parent_path() / p.at("file").get<std::string>();
+      std::error_code size_ec;
+      if (fs::file_size(file, size_ec) != p.at("bytes").get<std::uint64_t>() || size_ec) continue;
+      header = record.at("index");
+      count = record.at("part_count").get<std::size_t>();
+      parts[p.at("z").at(0).get<std::int64_t>()] = p;
+    } catch (const std::exception&) {
+      continue;  // a record being replaced, or not ours
+    }
+  }
+  if (!header || parts.size() != count) return false;
+  std::int64_t z = 0;
+  nlohmann::json list = nlohmann::json::array();
+  for (const auto& [z_first, p] : parts) {
+    if (z_first != z) return false;
+    z = p.at("z").at(1).get<std::int64_t>();
+    list.push_back(p);
+  }
+  if (z != header->at("dims").at(2).get<std::int64_t>()) return false;
+  const std::string text = parts_index_text(*header, list);
+  std::error_code exists_ec;
+  if (!fs::exists(index, exists_ec) || read_file(index) != text) write_file_atomic(index, text);
+  return true;
+}
+
+// An index that another plan wrote (another level, budget, packed file or set of parts) goes
+// before a shard writes its parts, with the parts it lists that this plan does not write.
+void remove_stale_index(const std::string& index, const nlohmann::json& header,
+                        const std::vector<PlannedPart>& planned) {
+  std::error_code ec;
+  if (!fs::exists(index, ec)) return;
+  std::vector<std::string> files;
+  for (const auto& p : planned)
+    files.push_back(fs::path(p.path).filename().string());
+  try {
+    auto old = nlohmann::json::parse(read_file(index));
+    std::vector<std::string> old_files;
+    for (const auto& p : old.at("parts"))
+      old_files.push_back(p.at("file").get<std::string>());
+    old.erase("parts");
+    if (old == header && old_files == files) return;  // this plan's index (a shard was first)
+  } catch (const std::exception&) {
+  }
+  for (const auto& f : indexed_parts(index))
+    if (std::find(files.begin(), files.end(), fs::path(f).filename().string()) == files.end())
+      remove_file(f);
+  remove_file(index);
 }
 
 // The export itself: run_vdb_stage runs it inside its TBB arena.
@@ -509,8 +646,9 @@ StageResult export_vdb(const Config& config, const StageOptions& options) {
                          ": packed file missing: vispack-vdb exports the packed "
                          "file's pyramid (run vispack-pack first)"));
 
-  // Unsharded: one unit in work/vdb (the file, or the parts and their index). A shard: its part
-  // file is unit `slices.first` of work/vdb-parts (a shard's manifest records only its own part).
+  // Unsharded: one unit in work/vdb (the file, or the parts and their index). A shard: unit
+  // `slices.first` of work/vdb-parts, whose outputs are its slices' part of a level that fits,
+  // or the plan's parts that start in its slices (a shard's manifest records only its own).
   const std::string output =
       sharded ? vdb_part_path(config, slices.first, slices.last) : config.vdb_output;
   const std::string index = vdb_parts_index_path(config);
@@ -523,7 +661,17 @@ StageResult export_vdb(const Config& config, const StageOptions& options) {
   const int unit_index = sharded ? slices.first : 0;
   run.remove_stale_temporaries_of(output);
   const std::string input = fp.str();
-  if (run.up_to_date(unit_index, input, {output})) {
+  // The key of the shards' part records: the plan follows from the packed file and the stage
+  // hash (the config's vdb section, the version) alone, so shards that agree on it agree on it.
+  const std::string plan_key =
+      Fingerprint().file(config.output).text(run.stage_hash()).text(cat(stack)).str();
+  if (sharded) {
+    if (run.up_to_date(unit_index, input, run.recorded_outputs(unit_index))) {
+      run.skip(unit_index);
+      const bool indexed = complete_parts_index(run.dir(), plan_key, index);
+      return run.finish(indexed ? index : output);
+    }
+  } else if (run.up_to_date(unit_index, input, {output})) {
     run.skip(unit_index);
     return run.finish(output);
   }
@@ -539,34 +687,41 @@ StageResult export_vdb(const Config& config, const StageOptions& options) {
   }
 
   const format::Reader reader = format::Reader::open(config.output);
-  // A shard exports its part of the level the whole fits (choose_vdb_level), as before the
-  // unsharded export could write parts: every shard must choose the same level.
-  VdbExportPlan plan;
-  if (sharded) {
-    plan.choice = choose_vdb_level(config, reader, run.threads());
-    plan.why = "a shard (--slices): the finest level whose whole fits vdb.max_memory_mb";
-  } else {
-    plan = plan_vdb_export(config, reader, run.threads());
-  }
+  // Every process, shard or not, plans the same export (the plan reads the whole packed file):
+  // a shard writes its slices' part of a level that fits as one file, or the plan's parts that
+  // start in its slices.
+  VdbExportPlan plan = plan_vdb_export(config, reader, run.threads());
   const VdbLevelChoice& choice = plan.choice;
   const format::LevelInfo& info = reader.level(choice.level);
+  const std::int64_t depth = info.dims[2];
   const std::string chosen = describe_vdb_choice(choice);
   const bool parts = !plan.parts.empty();
+  const std::vector<PlannedPart> planned = planned_parts(config, plan, depth, stack);
+  // A shard's level z range: [ceil(A * D / S), ceil(B * D / S)); the shards of a stack tile it.
+  const std::int64_t shard_z0 = level_z_of_slice(slices.first, depth, stack);
+  const std::int64_t shard_z1 = level_z_of_slice(slices.last, depth, stack);
+  std::vector<std::size_t> mine;  // the planned parts this process writes
+  for (std::size_t i = 0; i < planned.size(); ++i)
+    if (planned[i].plan.z_first >= shard_z0 && planned[i].plan.z_first < shard_z1)
+      mine.push_back(i);
   if (!options.quiet) {
-    std::printf(
-        "vdb: exporting %s as %s (%s)%s\n", chosen.c_str(),
-        parts ? cat(plan.parts.size(), " parts listed in ", index).c_str() : "one file",
-        plan.why.c_str(),
-        sharded ? cat(", slices ", slices.first, ":", slices.last, " to ", output).c_str() : "");
+    std::string what = parts ? cat(plan.parts.size(), " parts listed in ", index) : "one file";
+    if (sharded)
+      what +=
+          parts ? cat("; slices ", slices.first, ":", slices.last, " (level z ", shard_z0, ":",
+                      shard_z1, ") write ", mine.size(), " of them")
+                : cat("; slices ", slices.first, ":", slices.last, " write their part to ", output);
+    std::printf("vdb: exporting %s as %s (%s)\n", chosen.c_str(), what.c_str(), plan.why.c_str());
     std::fflush(stdout);
   }
 
   const ExportChannels channels = export_channels(reader);
+  const nlohmann::json header = parts_index_header(config, plan, info, grid_names(channels));
   openvdb::initialize();
   // A voxel is active where the packed alpha (body coverage) is > 0: at level 0 of an
   // undownsampled file exactly the body mask.
   std::vector<WrittenPart> written;
-  std::vector<std::string> named;  // the grids' names (the grids themselves die with each part)
+  std::vector<std::string> named = grid_names(channels);  // the grids die with each part
   if (!parts) {
     const LevelPart part = level_part(reader, channels.rgba, choice.level, slices, stack);
     written.push_back(write_level_part(config, reader, choice, channels, part, sharded, slices,
@@ -574,49 +729,62 @@ StageResult export_vdb(const Config& config, const StageOptions& options) {
     if (!sharded) {  // parts of an earlier run at another budget would contradict the file
       for (const auto& f : indexed_parts(index))
         remove_file(f);
-      remove_file(index);
     }
+    remove_file(index);  // a shard's part file may have the name of a part it lists
     run.done(unit_index, input, {output}, reader.file_size());
     report_export(run, config, output, plan, info, sharded, written, named);
     return run.finish(output);
   }
 
   // Parts: the index goes first (a set of parts without it is incomplete) and is written last;
-  // a single file of an earlier run goes too.
-  const std::vector<std::string> stale = indexed_parts(index);
-  remove_file(index);
-  remove_file(config.vdb_output);
-  const std::int64_t depth = info.dims[2];
-  std::vector<std::string> outputs;
-  for (std::size_t i = 0; i < plan.parts.size(); ++i) {
-    const VdbPartPlan& p = plan.parts[i];
-    const SliceRange covers{slice_of_level_z(p.z_first, depth, stack),
-                            slice_of_level_z(p.z_last, depth, stack)};
-    const std::string path = vdb_part_path(config, covers.first, covers.last);
-    run.remove_stale_temporaries_of(path);
-    const LevelPart part = level_part_z(reader, channels.rgba, choice.level, p.z_first, p.z_last);
-    written.push_back(write_level_part(config, reader, choice, channels, part, true, covers, path,
-                                       run.threads(), &named));
-    written.back().estimated_bytes = p.bytes;
-    // The part's grids are freed; glibc keeps much of it in the builder threads' arenas, which
-    // the next part's threads did not reuse (2048x1216, two parts: the second peaked 40 % above
-    // the first): hand it back before the next part is built.
-    malloc_trim(0);
-    outputs.push_back(path);
-    if (!options.quiet) {
-      std::printf("vdb: part %zu/%zu: z %lld:%lld (slices %d:%d), %llu leaves -> %s\n", i + 1,
-                  plan.parts.size(), (long long)p.z_first, (long long)p.z_last, covers.first,
-                  covers.last, (unsigned long long)written.back().leaves, path.c_str());
-      std::fflush(stdout);
-    }
+  // a single file of an earlier run goes too. Shards keep an index of this same plan (another
+  // shard may have completed it: the last one rewrites it).
+  if (sharded) {
+    remove_stale_index(index, header, planned);
+  } else {
+    const std::vector<std::string> stale = indexed_parts(index);
+    remove_file(index);
+    for (const auto& f : stale)
+      if (std::none_of(planned.begin(), planned.end(),
+                       [&](const PlannedPart& p) { return p.path == f; }))
+        remove_file(f);
   }
-  for (const auto& f : stale)
-    if (std::find(outputs.begin(), outputs.end(), f) == outputs.end()) remove_file(f);
-  write_file_atomic(index, parts_index_text(config, plan, info, written, named));
-  outputs.push_back(index);
-  run.done(unit_index, input, outputs, reader.file_size());
+  remove_file(config.vdb_output);
+  std::vector<std::string> outputs;
+  for (std::size_t n = 0; n < mine.size(); ++n) {
+    const std::size_t i = mine[n];
+    written.push_back(
+        write_planned_part(config, reader, choice, channels, planned[i], run, &named));
+    outputs.push_back(planned[i].path);
+    if (sharded)
+      write_file_atomic(part_record_path(run, written.back()),
+                        nlohmann::json{{"key", plan_key},
+                                       {"part_count", planned.size()},
+                                       {"index", header},
+                                       {"part", part_json(written.back())}}
+                            .dump(2));
+    print_part(options, i, planned.size(), written.back());
+  }
+  bool indexed = true;
+  if (sharded) {
+    run.done(unit_index, input, outputs, reader.file_size());
+    indexed = complete_parts_index(run.dir(), plan_key, index);
+    run.set_report("shard_z", {shard_z0, shard_z1});
+    run.set_report("parts_planned", planned.size());
+    run.set_report("index_complete", indexed);
+  } else {
+    write_file_atomic(index, parts_index_text(header, written));
+    outputs.push_back(index);
+    run.done(unit_index, input, outputs, reader.file_size());
+  }
   report_export(run, config, index, plan, info, false, written, named);
-  return run.finish(index);
+  if (sharded) {
+    run.set_report("shard_slices", {slices.first, slices.last});
+    if (!options.quiet)
+      std::printf("vdb: %s\n", indexed ? cat("every part written: ", index).c_str()
+                                       : "the index waits for the other shards' parts");
+  }
+  return run.finish(indexed ? index : (outputs.empty() ? run.dir() : outputs.front()));
 }
 
 }  // namespace

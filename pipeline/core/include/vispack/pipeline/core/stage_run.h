@@ -124,6 +124,10 @@ class StageRun {
   // Always false with --force.
   bool up_to_date(int index, const std::string& input_fingerprint,
                   const std::vector<std::string>& outputs) const;
+  // The outputs recorded for slice `index` by an earlier run (empty when none was recorded, or
+  // it recorded none): for a unit whose outputs are known only after costly planning (a vdb
+  // shard's parts), checked with up_to_date(index, input, recorded_outputs(index)).
+  std::vector<std::string> recorded_outputs(int index) const;
   // True if every slice of the range is up to date by the records alone (outputs checked):
   // for stages that do whole-stack work (register) and want to skip it entirely.
   bool all_up_to_date() const;

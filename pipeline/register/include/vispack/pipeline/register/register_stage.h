@@ -12,10 +12,12 @@ namespace vispack::pipeline {
 // vispack-register: reads the rgb stack (and the CT if configured), writes
 //   <work>/register/pairs/pairs_NNNN.json   per-slice record: pair edges, fiducials, CT anchor
 //                                           (the sharded part)
-//   <work>/register/pairs/picture_NNNN.png  a sharded run's overlay picture of the slice
-//                                           (≤ 512 px, its identity in the record): the QC
-//                                           overlay after the solve warps it instead of the
-//                                           full-size slice
+//   <work>/register/pairs/picture_NNNN.png  the slice's overlay picture (≤ 512 px, its
+//                                           identity in the record), written as the slice is
+//                                           read for its record: the QC overlay after the
+//                                           solve warps it instead of the full-size slice, and
+//                                           no run keeps its range's pictures in memory (flat
+//                                           memory whatever the stack's length)
 //   <work>/register/transforms.json         the solved transforms ("frame": "ct" with CT; the
 //                                           defined ct_to_rgb; per-slice anchor confidence and
 //                                           residual)
@@ -28,7 +30,8 @@ namespace vispack::pipeline {
 // The anchor mode is register.anchor ("auto": ct when configured, else fiducials when found,
 // else none). Without an absolute anchor the stage warns on stderr and in the report.
 // Sharded runs (options.slices = "A:B") compute the records of [A, B) (reading slices down to
-// A−4 for the edges into A) and keep each slice's overlay picture with its record. The run that
+// A−4 for the edges into A) and keep each slice's overlay picture with its record (as an
+// unsharded run does). The run that
 // finds every slice's record present (whichever shard finishes last, or the unsharded run)
 // solves and writes transforms.json; a shard writes registered slices and QC overlays of its
 // range only when transforms.json covers the whole stack. So a scheduler runs all shards, then

@@ -43,8 +43,15 @@
 // range, active voxels, leaves, bytes); vdb_output itself is not written (an earlier one is
 // removed, as are the parts an earlier index listed when one file is written). Merged (the
 // grids of one name, tree().merge()), the parts hold exactly the voxels of the one-file export.
-// The stdout line and the report ("layout", "layout_reason", "parts") say which and why. A
-// shard (--slices) exports its part of the level the whole fits (choose_vdb_level), as before.
+// The stdout line and the report ("layout", "layout_reason", "parts") say which and why.
+// A shard (--slices A:B) plans the same export from the whole file (the plan follows from the
+// packed file and the config): a level that fits as one file, it writes its slices' part of
+// (above; report layout "shard part"); over the budget, the plan's parts whose first z lies in
+// its level z range [ceil(A * D / S), ceil(B * D / S)) (each part one shard's; a shard may
+// write none), each recorded in work/vdb-parts/part-<file>.json (plan key, index header, the
+// part's index entry); the shard that finds every part recorded and present writes the index,
+// the same bytes one process writes (report: layout "parts", "parts" its own, "parts_planned",
+// "index_complete", "shard_z"). An index of another plan is removed before a shard writes.
 // Memory: bounded by vdb.max_memory_mb per file written, whatever the stack's length (the
 // packed file's pages are released after each brick is decoded; docs/BENCHMARKS.md).
 #pragma once
