@@ -49,16 +49,16 @@ json full_config() {
     "spacing_mm": [0.33, 0.33, 1.0],
     "rgb": { "dir": "data/raw", "pattern": "c{n}.raw",
              "raw": { "width": 16, "height": 8, "channels": 3, "layout": "planar", "bits": 8,
-                      "endian": "little", "header_bytes": 0 } },
+                      "endian": "little", "header_bytes": 0, "header": "none" } },
     "ct": { "dir": "data/ct", "pattern": "ct_{n}.png", "pixel_spacing_mm": [0.9, 0.9],
             "slope": 1.0, "intercept": -1024.0, "slice_spacing_mm": 3.0, "z_offset_mm": -1.5,
             "raw": { "width": 4, "height": 4, "channels": 1, "layout": "interleaved", "bits": 16,
-                     "endian": "big", "header_bytes": 10 } },
+                     "endian": "big", "header_bytes": 10, "header": "none" } },
     "seg": { "dir": "data/seg", "pattern": "seg_{n}.png", "palette": "data/palette.json",
              "mode": "id", "tolerance": 24, "strict": false, "id_map": "data/id_map.json",
              "slice_spacing_mm": 0.5, "z_offset_mm": 0.25,
              "raw": { "width": 16, "height": 8, "channels": 1, "layout": "interleaved", "bits": 16,
-                      "endian": "little", "header_bytes": 0 } },
+                      "endian": "little", "header_bytes": 0, "header": "none" } },
     "register": { "enabled": true, "method": "phase+ecc", "ecc_scale": 0.5, "ecc_iterations": 50,
                   "jump_px": 6.0, "anchor": "ct", "ct_anchor_between": "interpolated",
                   "overrides": "data/overrides.json",
@@ -289,6 +289,13 @@ TEST(Config, ErrorsNameTheKey) {
        "rgb.raw.layout: \"tiled\" is not one of"},
       {[](json& j) { j["rgb"]["raw"]["bits"] = 12; }, "rgb.raw.bits: must be 8 or 16"},
       {[](json& j) { j["rgb"]["raw"].erase("width"); }, "rgb.raw.width: missing"},
+      {[](json& j) { j["ct"]["raw"]["header"] = "dicom"; },
+       "ct.raw.header: \"dicom\" is not one of"},
+      {[](json& j) { j["ct"]["raw"]["header"] = "genesis"; },
+       "ct.raw.header_bytes: not used with header \"genesis\" (each file's own header gives the "
+       "pixel offset); remove it"},
+      {[](json& j) { j["rgb"]["raw"]["header"] = "genesis"; },
+       "rgb.raw.channels: must be 1 with header \"genesis\""},
       {[](json& j) { j["seg"]["palette"] = "none.json"; }, "seg.palette: file"},
       {[](json& j) { j["seg"]["mode"] = "colour"; }, "seg.id_map: only allowed in mode \"id\""},
       {[](json& j) { j["seg"]["tolerance"] = 500; }, "seg.tolerance: 500 is out of range"},
@@ -334,6 +341,25 @@ TEST(Config, ErrorsNameTheKey) {
         << "expected '" << c.expected << "' in '" << error << "' for " << j.dump();
     EXPECT_NE(error.find(dir / "c.json"), std::string::npos) << error;
   }
+}
+
+// raw.header "genesis" (the VH male's CT .fre files, slice_io.h): no header_bytes, samples
+// big-endian unless endian says otherwise; written back by the config writer.
+TEST(Config, GenesisHeaderDefaultsToBigEndian) {
+  test::TempDir dir;
+  make_inputs(dir);
+  json j = full_config();
+  j["ct"]["raw"].erase("header_bytes");
+  j["ct"]["raw"].erase("endian");
+  j["ct"]["raw"]["header"] = "genesis";
+  const Config c = load_config(write_config(dir, j));
+  ASSERT_TRUE(c.ct && c.ct->raw);
+  EXPECT_TRUE(c.ct->raw->genesis);
+  EXPECT_TRUE(c.ct->raw->big_endian);
+  EXPECT_EQ(c.ct->raw->header_bytes, 0u);
+  EXPECT_FALSE(c.rgb.raw->genesis);
+  j["ct"]["raw"]["endian"] = "little";
+  EXPECT_FALSE(load_config(write_config(dir, j)).ct->raw->big_endian);
 }
 
 TEST(Config, CommentsAreAccepted) {

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <map>
 
 #include "test_support.h"
@@ -42,15 +43,21 @@ Slices intermediates(const Config& config, int k) {
   return s;
 }
 
-}  // namespace
-
-TEST(Pack, MetadataDefectsAndReproducibility) {
-  test::TempDir dir;
+// The tiny phantom (seed 7) in `dir`; its config.json as written.
+nlohmann::json tiny_phantom(const test::TempDir& dir) {
   PhantomOptions po;
   po.preset = "tiny";
   po.seed = 7;
   po.quiet = true;
   make_phantom(dir.path(), po);
+  return nlohmann::json::parse(read_file(dir / "config.json"));
+}
+
+}  // namespace
+
+TEST(Pack, MetadataDefectsAndReproducibility) {
+  test::TempDir dir;
+  tiny_phantom(dir);
   {
     // The full-size registered colour and resampled CT are compared below as the register and
     // mask stages write them (work.write_registered / write_ct; off by default): the stages
@@ -196,4 +203,42 @@ TEST(Pack, MetadataDefectsAndReproducibility) {
                               &out),
             2)
       << out;
+}
+
+// The VH female's naming (a number per millimetre, a letter per 1/3 mm slice): a missing letter is
+// a missing slice like a missing number, listed by name in the metadata's slices.missing_slices
+// (missing_numbers lists only the numbers none of whose slices is there).
+TEST(Pack, MissingLettersAndNumbersAreListed) {
+  test::TempDir dir;
+  auto j = tiny_phantom(dir);
+  j["spacing_mm"][2] = 1.0 / 3.0;
+  j["ct"]["slice_spacing_mm"] = 1.0 / 3.0;  // CT and segmentation on every slot
+  j["seg"]["slice_spacing_mm"] = 1.0 / 3.0;
+  j["rgb"]["pattern"] = "avf{n}{a}.png";
+  write_file_atomic(dir / "config.json", j.dump());
+  const std::string rgb = dir / j["rgb"]["dir"].get<std::string>();
+  for (int k = 0; k < 24; ++k) {
+    char from[32];
+    std::snprintf(from, sizeof from, "/rgb_%04d.png", k);
+    const std::string to = "/avf" + std::to_string(1000 + k / 3) + char('a' + k % 3) + ".png";
+    // Deleted: 1002b (k = 7) and the whole of 1005 (k = 15, 16, 17).
+    if (k == 7 || (k >= 15 && k <= 17))
+      std::filesystem::remove(rgb + from);
+    else
+      std::filesystem::rename(rgb + from, rgb + to);
+  }
+  Config config = load_config(dir / "config.json");
+  RunOptions options;
+  options.quiet = true;
+  options.to = "pack";
+  run_pipeline(config, options);
+  auto reader = format::Reader::open(config.output);
+  EXPECT_EQ(reader.dims()[2], 20);
+  const auto slices = reader.metadata()["extra"]["slices"];
+  EXPECT_EQ(slices["count"], 20);
+  EXPECT_EQ(slices["missing_numbers"], nlohmann::json::array({1005}));
+  EXPECT_EQ(slices["missing_slices"], nlohmann::json::array({"1002b", "1005a", "1005b", "1005c"}));
+  const auto report =
+      nlohmann::json::parse(read_file(config.work_dir + "/pack/report.json"))["quality"];
+  EXPECT_EQ(report["missing_slices"], 4);
 }

@@ -1,6 +1,7 @@
 // Slice I/O: round trips through PNG/TIFF/JPEG and raw layouts, RGB channel order, errors.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdint>
 #include <filesystem>
@@ -216,6 +217,99 @@ TEST(SliceIo, RawByteLayoutIsWhatNlmFilesUse) {
   EXPECT_EQ(vp::read_slice(dir / "b.raw", big).at<std::uint16_t>(0, 0), 0x1234);
   big.big_endian = false;
   EXPECT_EQ(vp::read_slice(dir / "b.raw", big).at<std::uint16_t>(0, 0), 0x3412);
+}
+
+namespace {
+
+// A GE Genesis image as the NLM male's CT files are (genesis.h): "IMGF", then big-endian int32
+// pixel offset, width, height, depth and compression, filler up to the offset (0xA5: read as
+// pixels it shows), then the big-endian 16-bit samples of `image`.
+std::string genesis_file(const cv::Mat& image, std::int32_t offset, std::int32_t width,
+                         std::int32_t height, std::int32_t depth = 16, std::int32_t compression = 0,
+                         const char* magic = "IMGF") {
+  std::string bytes(magic, 4);
+  for (std::int32_t v : {offset, width, height, depth, compression})
+    for (int shift : {24, 16, 8, 0})
+      bytes += char(std::uint32_t(v) >> shift & 0xff);
+  bytes.resize(std::size_t(std::max<std::int32_t>(offset, 24)), char(0xA5));
+  for (int y = 0; y < image.rows; ++y)
+    for (int x = 0; x < image.cols; ++x) {
+      const std::uint16_t v = image.at<std::uint16_t>(y, x);
+      bytes += char(v >> 8);
+      bytes += char(v & 0xff);
+    }
+  return bytes;
+}
+
+vp::RawLayout genesis_layout(int width, int height) {
+  vp::RawLayout layout;
+  layout.width = width;
+  layout.height = height;
+  layout.channels = 1;
+  layout.bits = 16;
+  layout.big_endian = true;
+  layout.genesis = true;
+  return layout;
+}
+
+}  // namespace
+
+// raw.header "genesis": the samples start where the file's own header says (3416 bytes as
+// commonly quoted for the male's .fre files, or any other offset), with the header's width,
+// height and depth checked against the config; a file that is not one, a header cut short, an
+// offset outside the file, dims or depth that disagree and a compressed file are refused naming
+// the file and the field.
+TEST(SliceIo, GenesisHeaderGivesThePixelOffsetAndIsCheckedAgainstTheConfig) {
+  TempDir dir;
+  const cv::Mat image = make_image(19, 11, CV_16UC1);
+  const vp::RawLayout layout = genesis_layout(19, 11);
+  for (std::int32_t offset : {3416, 7904, 24}) {
+    write_bytes(dir / "c_vm1001.fre", genesis_file(image, offset, 19, 11));
+    EXPECT_TRUE(equal(vp::read_slice(dir / "c_vm1001.fre", layout), image)) << "offset " << offset;
+  }
+  const std::string path = dir / "bad.fre";
+  auto refused = [&](const std::string& bytes, const std::string& needle) {
+    write_bytes(path, bytes);
+    expect_error<vispack::InputError>([&] { vp::read_slice(path, layout); }, path + ": " + needle);
+  };
+  refused(genesis_file(image, 3416, 19, 11, 16, 0, "IMGX"),
+          "not a GE Genesis image: starts with \"IMGX\", not the magic \"IMGF\"");
+  refused(genesis_file(image, 3416, 19, 11).substr(0, 14), "GE Genesis header truncated: 14 bytes");
+  refused(genesis_file(image, 3416, 19, 11).substr(0, 3000),
+          "GE Genesis header field pixel data offset (bytes 4..7) is 3416: outside the file's "
+          "3000 bytes");
+  refused(genesis_file(image, 3416, 19, 11).substr(0, 3416 + 100),
+          "raw slice has 3516 bytes, expected 3834 (19x11x1 at 16 bit, header 3416 bytes by its "
+          "GE Genesis header)");
+  refused(genesis_file(image, 3416, 11, 19),
+          "GE Genesis header field width is 11, the config's raw.width is 19");
+  refused(genesis_file(image, 3416, 19, 12),
+          "GE Genesis header field height is 12, the config's raw.height is 11");
+  refused(genesis_file(image, 3416, 19, 11, 8),
+          "GE Genesis header field depth is 8, the "
+          "config's raw.bits is 16");
+  refused(genesis_file(image, 3416, 19, 11, 16, 3),
+          "GE Genesis header field compression (bytes 20..23) is 3: only 0 (none) and 1");
+}
+
+// Without raw.header "genesis", a Genesis file read with a header_bytes that is not its pixel
+// offset is refused naming both (the size check alone would pass a file whose header is as long
+// as header_bytes says but whose pixels start elsewhere); the right header_bytes reads it.
+TEST(SliceIo, GenesisFileReadWithTheWrongHeaderBytesIsRefused) {
+  TempDir dir;
+  const cv::Mat image = make_image(19, 11, CV_16UC1);
+  vp::RawLayout layout = genesis_layout(19, 11);
+  layout.genesis = false;
+  // The pixels at byte 3400 and 16 bytes after them: the size header_bytes 3416 expects, the
+  // samples read 16 bytes late.
+  write_bytes(dir / "c.fre", genesis_file(image, 3400, 19, 11) + std::string(16, '\0'));
+  layout.header_bytes = 3416;
+  expect_error<vispack::InputError>(
+      [&] { vp::read_slice(dir / "c.fre", layout); },
+      "c.fre: a GE Genesis image (magic IMGF) whose header puts the pixels at byte 3400, but "
+      "raw.header_bytes is 3416; set raw.header to \"genesis\"");
+  write_bytes(dir / "c.fre", genesis_file(image, 3416, 19, 11));
+  EXPECT_TRUE(equal(vp::read_slice(dir / "c.fre", layout), image));
 }
 
 TEST(SliceIo, SizeFromTheHeaderAlone) {

@@ -48,13 +48,32 @@ vp::Config z_config(double colour_mm, double ct_mm, double ct_z0) {
   return c;
 }
 
-std::string config_error(const std::function<void()>& f) {
+// The message of the E that `f` throws, else `none`.
+template <class E>
+std::string error_of(const std::function<void()>& f, const char* none) {
   try {
     f();
-  } catch (const vispack::ConfigError& e) {
+  } catch (const E& e) {
     return e.what();
   }
-  return "(no ConfigError)";
+  return none;
+}
+std::string config_error(const std::function<void()>& f) {
+  return error_of<vispack::ConfigError>(f, "(no ConfigError)");
+}
+std::string input_error(const std::function<void()>& f) {
+  return error_of<vispack::InputError>(f, "(no InputError)");
+}
+
+// Colour files /rgb/avf<number>[<letter>].raw from (number, letter) pairs, letter −1 for none.
+std::vector<vp::SliceFile> avf_files(const std::vector<std::pair<int, int>>& numbers) {
+  std::vector<vp::SliceFile> out;
+  for (const auto& [n, letter] : numbers)
+    out.push_back({n,
+                   "/rgb/avf" + std::to_string(n) +
+                       (letter >= 0 ? std::string(1, char('a' + letter)) : "") + ".raw",
+                   letter});
+  return out;
 }
 
 }  // namespace
@@ -110,7 +129,17 @@ TEST(SliceZ, SegmentationSliceNearestInZWithinHalfASpacing) {
   EXPECT_EQ(vp::seg_at_colour_slice(c, 4, 15), 3);   // on the last
   EXPECT_EQ(vp::seg_at_colour_slice(c, 4, 17), 3);   // 0.4 mm beyond it
   EXPECT_EQ(vp::seg_at_colour_slice(c, 4, 18), -1);  // 0.6 mm beyond it: none
-  EXPECT_EQ(vp::colour_slice_of_seg(c, 20, 2), 10);
+  std::vector<vp::SliceFile> colour;
+  for (int k = 0; k < 20; ++k)
+    colour.push_back({k, "/rgb/rgb_" + std::to_string(k) + ".png"});
+  vp::place_colour_slices(c, colour);
+  EXPECT_EQ(vp::colour_slice_of_seg(c, colour, 2), 10);
+  // Colour numbers 8 to 10 missing: segmentation slice 2 (z 2 mm, slot 10) was drawn on a colour
+  // slice that is gone; the nearest one left is number 11 (stack index 8), not stack index 10
+  // (number 13).
+  colour.erase(colour.begin() + 8, colour.begin() + 11);
+  vp::place_colour_slices(c, colour);
+  EXPECT_EQ(vp::colour_slice_of_seg(c, colour, 2), 8);
   // Without seg.slice_spacing_mm the slices are matched by file number, not here.
   c.seg->slice_spacing_mm.reset();
   EXPECT_EQ(vp::seg_at_colour_slice(c, 4, 0), -1);
@@ -367,40 +396,259 @@ TEST(SliceZ, HeadCtCaseWithColourFiveTimesFinerThanTheCt) {
   head_ct_case(5);
 }
 
-// Colour slices lie along z by their position in the stack: a gap in the file numbers (or, with
-// {n}{a}, a missing letter) moves every later slice against the CT, and is said once, naming the
-// first gap and the count.
+// A gap in the colour numbers (or, with {n}{a}, a missing letter) is said once, naming the first
+// missing slice, its neighbours and the count: the later slices keep their z, the packed volume
+// lacks the slice.
 TEST(SliceZ, AGapInTheColourNumbersIsReported) {
-  const vp::Config c = z_config(1.0, 1.0, 0.0);
-  auto files = [](std::vector<std::pair<int, int>> numbers) {
-    std::vector<vp::SliceFile> out;
-    for (const auto& [n, letter] : numbers)
-      out.push_back({n,
-                     "/rgb/avf" + std::to_string(n) +
-                         (letter >= 0 ? std::string(1, char('a' + letter)) : "") + ".raw",
-                     letter});
+  vp::Config c = z_config(1.0, 1.0, 0.0);
+  auto placed = [&c](const std::vector<std::pair<int, int>>& numbers) {
+    std::vector<vp::SliceFile> out = avf_files(numbers);
+    vp::place_colour_slices(c, out);
     return out;
   };
-  EXPECT_EQ(vp::colour_gap_warning(c, files({{1, -1}, {2, -1}, {3, -1}})), "");
-  EXPECT_EQ(vp::colour_gap_warning(c, files({{10, -1}, {20, -1}, {30, -1}})), "");  // step 10
-  const std::string number = vp::colour_gap_warning(c, files({{1, -1}, {2, -1}, {4, -1}}));
-  EXPECT_NE(number.find("colour slice 3 is missing (avf2.raw is followed by avf4.raw)"),
+  EXPECT_EQ(vp::colour_gap_warning(c, placed({{1, -1}, {2, -1}, {3, -1}})), "");
+  EXPECT_EQ(vp::colour_gap_warning(c, placed({{10, -1}, {20, -1}, {30, -1}})), "");  // step 10
+  const std::string number = vp::colour_gap_warning(c, placed({{1, -1}, {2, -1}, {4, -1}}));
+  EXPECT_NE(number.find("colour slice 3 is missing (avf2.raw is followed by avf4.raw): every "
+                        "colour slice keeps its z from its file number (the CT and the "
+                        "segmentation are paired by it; the packed volume has no slice there"),
             std::string::npos)
       << number;
-  const std::string letter = vp::colour_gap_warning(c, files({{1001, 0},
-                                                              {1001, 1},
-                                                              {1001, 2},
-                                                              {1002, 0},
-                                                              {1002, 2},
-                                                              {1003, 0},
-                                                              {1003, 1},
-                                                              {1004, 0}}));
+  c.spacing_mm[2] = 1.0 / 3.0;
+  c.rgb.pattern = "avf{n}{a}.raw";
+  const std::string letter = vp::colour_gap_warning(c, placed({{1001, 0},
+                                                               {1001, 1},
+                                                               {1001, 2},
+                                                               {1002, 0},
+                                                               {1002, 2},
+                                                               {1003, 0},
+                                                               {1003, 1},
+                                                               {1004, 0}}));
   EXPECT_NE(letter.find("colour slice 1002b is missing (avf1002a.raw is followed by avf1002c.raw) "
-                        "and 1 more gaps"),
+                        "and 1 more:"),
             std::string::npos)
       << letter;
-  EXPECT_EQ(vp::colour_gap_warning(c, files({{1001, 0}, {1001, 1}, {1001, 2}, {1002, 0}})), "");
-  vp::Config no_ct = c;
+  EXPECT_EQ(vp::colour_gap_warning(c, placed({{1001, 0}, {1001, 1}, {1001, 2}, {1002, 0}})), "");
+  // Without CT the volume still lacks the slice: said too, without the pairing.
+  vp::Config no_ct = z_config(1.0, 1.0, 0.0);
   no_ct.ct.reset();
-  EXPECT_EQ(vp::colour_gap_warning(no_ct, files({{1, -1}, {3, -1}})), "");
+  const std::string alone = vp::colour_gap_warning(no_ct, placed({{1, -1}, {2, -1}, {4, -1}}));
+  EXPECT_NE(alone.find("colour slice 3 is missing"), std::string::npos) << alone;
+  EXPECT_EQ(alone.find("the CT"), std::string::npos) << alone;
+}
+
+// Colour slices are placed along z by their file number (and letter), never by their position in
+// the stack (slice_z.h place_colour_slices): the slots, the missing ones by name, the letters per
+// number from spacing_mm[2], and the files off the grid refused by name.
+TEST(SliceZ, ColourSlicesArePlacedByTheirFileNumber) {
+  const auto& files = avf_files;
+  auto slots = [](const std::vector<vp::SliceFile>& f) {
+    std::vector<int> out;
+    for (const auto& s : f)
+      out.push_back(s.slot);
+    return out;
+  };
+  auto names = [](const std::vector<vp::MissingColourSlice>& m) {
+    std::vector<std::string> out;
+    for (const auto& s : m)
+      out.push_back(s.name);
+    return out;
+  };
+  vp::Config c = z_config(1.0, 3.0, 0.0);
+  // Numbers: the step is the smallest difference; a gap leaves its slots empty.
+  auto numbers = files({{7, -1}, {8, -1}, {11, -1}, {12, -1}});
+  vp::place_colour_slices(c, numbers);
+  EXPECT_EQ(slots(numbers), (std::vector<int>{0, 1, 4, 5}));
+  EXPECT_EQ(vp::colour_slot_count(numbers), 6);
+  EXPECT_EQ(names(vp::missing_colour_slices(c, numbers)), (std::vector<std::string>{"9", "10"}));
+  auto tens = files({{10, -1}, {20, -1}, {40, -1}});
+  vp::place_colour_slices(c, tens);
+  EXPECT_EQ(slots(tens), (std::vector<int>{0, 1, 3}));
+  EXPECT_EQ(names(vp::missing_colour_slices(c, tens)), (std::vector<std::string>{"30"}));
+  // CT slice 1 (z 3 mm) lies on slot 3: after the gap colour slice k = 1 of {0, 4} sits at 4 mm.
+  EXPECT_EQ(vp::ct_at_colour_slice(c, 3, numbers[2].slot).below, 1);
+  EXPECT_NEAR(vp::ct_at_colour_slice(c, 3, numbers[2].slot).w_above, 1.0 / 3.0, 1e-12);
+  auto off_grid = files({{10, -1}, {20, -1}, {25, -1}});  // step 5: 10 and 20 are fine, 25 too
+  EXPECT_NO_THROW(vp::place_colour_slices(c, off_grid));
+  auto odd = files({{0, -1}, {3, -1}, {7, -1}});  // step 3; 7 is not 0 + a multiple of 3
+  const std::string off = input_error([&] { vp::place_colour_slices(c, odd); });
+  EXPECT_NE(off.find("/rgb/avf7.raw: number 7 is not a whole number of steps (3, the smallest "
+                     "difference between numbers)"),
+            std::string::npos)
+      << off;
+  // {n}{a}: numbers count millimetres, 1 mm / (1/3 mm) = 3 letters per number.
+  c.spacing_mm[2] = 1.0 / 3.0;
+  c.rgb.pattern = "avf{n}{a}.raw";
+  auto letters = files({{1001, 1}, {1001, 2}, {1002, 0}, {1002, 2}, {1004, 0}});
+  vp::place_colour_slices(c, letters);
+  EXPECT_EQ(slots(letters), (std::vector<int>{0, 1, 2, 4, 8}));
+  EXPECT_EQ(names(vp::missing_colour_slices(c, letters)),
+            (std::vector<std::string>{"1002b", "1003a", "1003b", "1003c"}));
+  const std::string gap = vp::colour_gap_warning(c, letters);
+  EXPECT_NE(gap.find("colour slice 1002b is missing (avf1002a.raw is followed by avf1002c.raw) "
+                     "and 3 more: every colour slice keeps its z from its file number"),
+            std::string::npos)
+      << gap;
+  auto beyond = files({{1001, 0}, {1001, 3}});  // 'd': a fourth slice in a 3-slice millimetre
+  const std::string d = input_error([&] { vp::place_colour_slices(c, beyond); });
+  EXPECT_NE(d.find("/rgb/avf1001d.raw: letter 'd' is beyond the 3 slices per millimetre that "
+                   "spacing_mm[2]"),
+            std::string::npos)
+      << d;
+  // A spacing that does not divide a millimetre: a ConfigError naming both keys.
+  c.spacing_mm[2] = 0.33;
+  auto any = files({{1001, 0}});
+  const std::string e = config_error([&] { vp::place_colour_slices(c, any); });
+  EXPECT_NE(e.find("spacing_mm[2]: 0.33 mm does not divide a millimetre"), std::string::npos) << e;
+  EXPECT_NE(e.find("rgb.pattern \"avf{n}{a}.raw\""), std::string::npos) << e;
+}
+
+namespace {
+
+// Drops the truth of colour slices `gone` (stack indices of the whole phantom) from a phantom's
+// truth folder: what the remaining slices of a stack with those files deleted are scored against.
+void drop_truth_slices(const std::string& truth, const std::string& out,
+                       const std::vector<int>& gone) {
+  std::filesystem::create_directories(out);
+  json t = json::parse(vispack::read_file(truth + "/transforms.json"));
+  json kept = json::array();
+  for (std::size_t k = 0; k < t["slices"].size(); ++k)
+    if (std::find(gone.begin(), gone.end(), int(k)) == gone.end()) kept.push_back(t["slices"][k]);
+  t["slices"] = kept;
+  vispack::write_file_atomic(out + "/transforms.json", t.dump());
+  for (const char* name : {"mask.nrrd", "labels.nrrd"}) {
+    const vispack::NrrdVolume v = vispack::read_nrrd(truth + "/" + name);
+    vispack::NrrdVolume w = v;
+    const std::size_t plane = v.byte_size() / std::size_t(v.dims[2]);
+    w.data.clear();
+    for (std::int64_t k = 0; k < v.dims[2]; ++k)
+      if (std::find(gone.begin(), gone.end(), int(k)) == gone.end())
+        w.data.insert(w.data.end(), v.data.begin() + std::ptrdiff_t(plane * std::size_t(k)),
+                      v.data.begin() + std::ptrdiff_t(plane * std::size_t(k + 1)));
+    w.dims[2] = v.dims[2] - std::int64_t(gone.size());
+    vispack::write_nrrd(out + "/" + name, w);
+  }
+}
+
+// The anatomy phantom with a CT and a segmentation slice at every 3rd colour slice; `rename`
+// gives each colour file its new name (stack index → name, "" keeps it), `gone` lists the colour
+// files deleted before the run (stack indices). Runs register, mask and labels (with the CT
+// written per slice) and scores the remaining slices against their own truth.
+struct GapCase {
+  TempDir dir{"vispack-slice-z-gap"};
+  vp::Config config;
+  vph::Score score;
+  std::vector<std::string> names;  // the remaining colour files, in stack order
+
+  GapCase(const std::vector<int>& gone, const std::function<std::string(int)>& rename,
+          const std::string& pattern, double colour_mm) {
+    vph::PhantomOptions o;
+    o.preset = "anatomy";
+    o.seed = 3;
+    o.slices = 61;
+    o.ct_every = 3;
+    o.seg_every = 3;
+    o.quiet = true;
+    vph::make_phantom(dir.path(), o);
+    json j = json::parse(vispack::read_file(dir / "config.json"));
+    const double scale = colour_mm / j["spacing_mm"][2].get<double>();
+    j["spacing_mm"][2] = colour_mm;
+    j["ct"]["slice_spacing_mm"] = j["ct"]["slice_spacing_mm"].get<double>() * scale;
+    j["seg"]["slice_spacing_mm"] = j["seg"]["slice_spacing_mm"].get<double>() * scale;
+    j["rgb"]["pattern"] = pattern;
+    j["work"]["write_ct"] = true;
+    vispack::write_file_atomic(dir / "config.json", j.dump(2));
+    const std::string rgb = dir / j["rgb"]["dir"].get<std::string>();
+    std::vector<std::string> files;
+    for (int k = 0; k < o.slices; ++k) {
+      char name[32];
+      std::snprintf(name, sizeof name, "rgb_%04d.png", k);
+      files.push_back(rgb + "/" + name);
+    }
+    for (int k = 0; k < o.slices; ++k) {
+      const bool deleted = std::find(gone.begin(), gone.end(), k) != gone.end();
+      if (deleted) {
+        std::filesystem::remove(files[std::size_t(k)]);
+        continue;
+      }
+      std::string to = rename(k);
+      if (!to.empty()) std::filesystem::rename(files[std::size_t(k)], rgb + "/" + to);
+      names.push_back(to.empty() ? std::filesystem::path(files[std::size_t(k)]).filename().string()
+                                 : to);
+    }
+    config = vp::load_config(dir / "config.json");
+    vp::RunOptions run;
+    run.to = "labels";
+    run.quiet = true;
+    vp::run_pipeline(config, run);
+    drop_truth_slices(dir / "truth", dir / "truth-kept", gone);
+    score = vph::score_work(dir / "truth-kept", config.work_dir);
+  }
+  std::string ct_png(int k) const { return vp::mask_ct_path(config, k); }
+};
+
+void print_gap_score(const char* what, const vph::Score& s) {
+  std::printf(
+      "%s: drift over the body rms %.3f px (max %.3f); jumps %d/%d, %d false; mask stack "
+      "IoU %.4f, min %.4f; labels %.4f\n",
+      what, s.drift.over_body_rms_px, s.drift.over_body_max_px, s.jumps.found, s.jumps.true_jumps,
+      s.jumps.false_jumps, s.mask.stack_iou, s.mask.min_body_iou, s.labels.overall);
+}
+
+// The slices after a gap against the same stack without one: every remaining slice gets the very
+// CT the whole stack gives the same file (byte for byte), and the scores over the remaining
+// slices meet the whole stack's within a small margin (the solve loses the pairs across the gap).
+void expect_like_whole(const GapCase& gap, const GapCase& whole, const std::vector<int>& gone) {
+  int k_whole = 0, after_gap = 0;
+  for (int k = 0; k < int(gap.names.size()); ++k, ++k_whole) {
+    while (std::find(gone.begin(), gone.end(), k_whole) != gone.end())
+      ++k_whole, ++after_gap;
+    ASSERT_TRUE(std::filesystem::exists(gap.ct_png(k))) << gap.ct_png(k);
+    EXPECT_TRUE(vispack::read_file(gap.ct_png(k)) == vispack::read_file(whole.ct_png(k_whole)))
+        << gap.names[std::size_t(k)] << " (slice " << k << ", " << after_gap
+        << " deleted before it) gets another CT than in the whole stack";
+  }
+  const vph::Score &s = gap.score, &w = whole.score;
+  EXPECT_LE(s.drift.over_body_rms_px, std::max(0.5, w.drift.over_body_rms_px + 0.1));
+  EXPECT_EQ(s.jumps.found, w.jumps.found);
+  EXPECT_LE(s.jumps.false_jumps, 3);
+  EXPECT_GE(s.mask.stack_iou, w.mask.stack_iou - 0.005);
+  EXPECT_GE(s.labels.overall, w.labels.overall - 0.01);
+}
+
+}  // namespace
+
+// A colour file missing inside the stack (two numbers, then one more): the slices after the gap
+// keep their z from their numbers, so the CT, the mask and the labels stay right.
+TEST(SliceZ, AGapInTheColourNumbersLeavesTheLaterSlicesInPlace) {
+  const std::vector<int> gone = {10, 11, 31};
+  auto keep = [](int) { return std::string(); };
+  GapCase whole({}, keep, "rgb_{n}.png", 1.0);
+  GapCase gap(gone, keep, "rgb_{n}.png", 1.0);
+  print_gap_score("numbers, whole stack", whole.score);
+  print_gap_score("numbers, 10, 11 and 31 deleted", gap.score);
+  expect_like_whole(gap, whole, gone);
+  const std::string warning = vp::colour_gap_warning(gap.config, vp::stack_slices(gap.config));
+  EXPECT_NE(warning.find("colour slice 10 is missing (rgb_0009.png is followed by rgb_0012.png) "
+                         "and 2 more"),
+            std::string::npos)
+      << warning;
+}
+
+// The VH female's naming (a number per millimetre, a letter per 1/3 mm slice): a missing letter
+// is a missing slice like a missing number.
+TEST(SliceZ, AMissingLetterLeavesTheLaterSlicesInPlace) {
+  const std::vector<int> gone = {10, 20, 21};  // 1003b; 1006c and 1007a
+  auto lettered = [](int k) {
+    return "avf" + std::to_string(1000 + k / 3) + char('a' + k % 3) + ".png";
+  };
+  GapCase whole({}, lettered, "avf{n}{a}.png", 1.0 / 3.0);
+  GapCase gap(gone, lettered, "avf{n}{a}.png", 1.0 / 3.0);
+  print_gap_score("letters, whole stack", whole.score);
+  print_gap_score("letters, 1003b, 1006c and 1007a deleted", gap.score);
+  expect_like_whole(gap, whole, gone);
+  std::vector<std::string> missing;
+  for (const auto& m : vp::missing_colour_slices(gap.config, vp::stack_slices(gap.config)))
+    missing.push_back(m.name);
+  EXPECT_EQ(missing, (std::vector<std::string>{"1003b", "1006c", "1007a"}));
 }

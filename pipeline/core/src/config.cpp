@@ -268,8 +268,16 @@ RawLayout parse_raw(Section s, int default_channels) {
   raw.planar = s.choice("layout", {"planar", "interleaved"}, "interleaved") == "planar";
   raw.bits = int(s.integer("bits", 8, 8, 16));
   if (raw.bits != 8 && raw.bits != 16) s.report("bits", "must be 8 or 16");
-  raw.big_endian = s.choice("endian", {"little", "big"}, "little") == "big";
+  // The header first: a GE Genesis image (the NLM male's CT .fre) stores big-endian samples.
+  raw.genesis = s.choice("header", {"none", "genesis"}, "none") == "genesis";
+  raw.big_endian = s.choice("endian", {"little", "big"}, raw.genesis ? "big" : "little") == "big";
   raw.header_bytes = std::uint64_t(s.integer("header_bytes", 0, 0, 1LL << 40));
+  if (raw.genesis && raw.header_bytes != 0)
+    s.report("header_bytes",
+             "not used with header \"genesis\" (each file's own header gives the pixel offset); "
+             "remove it");
+  if (raw.genesis && raw.channels != 1)
+    s.report("channels", "must be 1 with header \"genesis\" (a GE Genesis image is grey)");
   s.finish();
   return raw;
 }
@@ -334,9 +342,12 @@ const std::vector<std::pair<std::string, std::vector<std::string>>>& known_keys(
       {"seg",
        {"dir", "pattern", "raw", "palette", "mode", "tolerance", "strict", "id_map",
         "slice_spacing_mm", "z_offset_mm"}},
-      {"rgb.raw", {"width", "height", "channels", "layout", "bits", "endian", "header_bytes"}},
-      {"ct.raw", {"width", "height", "channels", "layout", "bits", "endian", "header_bytes"}},
-      {"seg.raw", {"width", "height", "channels", "layout", "bits", "endian", "header_bytes"}},
+      {"rgb.raw",
+       {"width", "height", "channels", "layout", "bits", "endian", "header_bytes", "header"}},
+      {"ct.raw",
+       {"width", "height", "channels", "layout", "bits", "endian", "header_bytes", "header"}},
+      {"seg.raw",
+       {"width", "height", "channels", "layout", "bits", "endian", "header_bytes", "header"}},
       {"register",
        {"enabled", "method", "ecc_scale", "ecc_iterations", "jump_px", "output_frame", "anchor",
         "ct_anchor_between", "overrides"}},
@@ -705,13 +716,15 @@ std::string relative_to(const std::string& path, const std::string& base) {
 }
 
 json raw_to_json(const RawLayout& raw) {
-  return {{"width", raw.width},
-          {"height", raw.height},
-          {"channels", raw.channels},
-          {"layout", raw.planar ? "planar" : "interleaved"},
-          {"bits", raw.bits},
-          {"endian", raw.big_endian ? "big" : "little"},
-          {"header_bytes", raw.header_bytes}};
+  json out = {{"width", raw.width},
+              {"height", raw.height},
+              {"channels", raw.channels},
+              {"layout", raw.planar ? "planar" : "interleaved"},
+              {"bits", raw.bits},
+              {"endian", raw.big_endian ? "big" : "little"},
+              {"header_bytes", raw.header_bytes}};
+  if (raw.genesis) out["header"] = "genesis";
+  return out;
 }
 
 json source_to_json(const SliceSource& source, const std::string& base) {

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <filesystem>
 
 #include "vispack/common/error.h"
 
@@ -18,22 +19,103 @@ double mm(double value) {
   return std::round(value * 100.0) / 100.0;
 }
 
+std::string file_name(const SliceFile& f) {
+  return std::filesystem::path(f.path).filename().string();
+}
+
+// With {n}{a}: the colour slices per file number (numbers count millimetres, slice_z.h).
+int letters_per_number(const Config& config) {
+  const double per_mm = 1.0 / config.spacing_mm[2];
+  const double letters = std::round(per_mm);
+  if (letters < 1 || letters > 26 || std::abs(per_mm - letters) > 1e-6 * letters)
+    throw ConfigError(cat(config.path, ": spacing_mm[2]: ", config.spacing_mm[2],
+                          " mm does not divide a millimetre into 1 to 26 slices, as the lettered "
+                          "pattern rgb.pattern \"",
+                          config.rgb.pattern,
+                          "\" needs (its numbers count millimetres, its letters the slices "
+                          "within one; e.g. 0.3333333333333333 for a, b, c)"));
+  return int(letters);
+}
+
+// The smallest difference between consecutive numbers (1 for a stack of one).
+int number_step(const std::vector<SliceFile>& files) {
+  int step = 0;
+  for (std::size_t i = 1; i < files.size(); ++i) {
+    const int d = files[i].number - files[i - 1].number;
+    if (d > 0 && (step == 0 || d < step)) step = d;
+  }
+  return step > 0 ? step : 1;
+}
+
+bool lettered(const std::vector<SliceFile>& files) {
+  return !files.empty() && files.front().letter >= 0;
+}
+
 }  // namespace
 
-double colour_z_mm(const Config& config, int colour_k) {
-  return colour_k * config.spacing_mm[2];
+void place_colour_slices(const Config& config, std::vector<SliceFile>& colour) {
+  if (colour.empty()) return;
+  const SliceFile first = colour.front();
+  if (lettered(colour)) {
+    const int letters = letters_per_number(config);
+    for (auto& f : colour) {
+      if (f.letter >= letters)
+        throw InputError(cat(f.path, ": letter '", char('a' + f.letter), "' is beyond the ",
+                             letters, " slices per millimetre that spacing_mm[2] (",
+                             config.spacing_mm[2], " mm) allows (a to ", char('a' + letters - 1),
+                             "); the file's place along z is undefined"));
+      f.slot = (f.number - first.number) * letters + f.letter - first.letter;
+    }
+    return;
+  }
+  const int step = number_step(colour);
+  for (auto& f : colour) {
+    if ((f.number - first.number) % step != 0)
+      throw InputError(cat(f.path, ": number ", f.number, " is not a whole number of steps (", step,
+                           ", the smallest difference between numbers) from the first, ",
+                           file_name(first), "; the file's place along z is undefined"));
+    f.slot = (f.number - first.number) / step;
+  }
+}
+
+std::vector<MissingColourSlice> missing_colour_slices(const Config& config,
+                                                      const std::vector<SliceFile>& colour) {
+  std::vector<MissingColourSlice> missing;
+  if (colour.empty()) return missing;
+  const SliceFile& first = colour.front();
+  const bool letters = lettered(colour);
+  const int per_number = letters ? letters_per_number(config) : 1;
+  const int step = letters ? 1 : number_step(colour);
+  for (std::size_t i = 1; i < colour.size() && missing.size() < 100000; ++i)
+    for (int slot = colour[i - 1].slot + 1; slot < colour[i].slot && missing.size() < 100000;
+         ++slot) {
+      // Slot back to number (and letter), relative to the first file.
+      const int from_first = slot + (letters ? first.letter : 0);
+      const int number = first.number + (from_first / per_number) * step;
+      missing.push_back(
+          {slot, letters ? cat(number, char('a' + from_first % per_number)) : cat(number)});
+    }
+  return missing;
+}
+
+int colour_slot_count(const std::vector<SliceFile>& colour) {
+  return colour.empty() ? 0 : colour.back().slot + 1;
+}
+
+double colour_z_mm(const Config& config, int colour_slot) {
+  return colour_slot * config.spacing_mm[2];
 }
 
 double ct_slice_spacing_mm(const Config& config) {
   return config.ct ? config.ct->slice_spacing_mm.value_or(config.spacing_mm[2]) : 0.0;
 }
 
-CtAtZ ct_at_colour_slice(const Config& config, int ct_count, int colour_k) {
+CtAtZ ct_at_colour_slice(const Config& config, int ct_count, int colour_slot) {
   CtAtZ at;
   if (!config.ct || ct_count <= 0) return at;
   const double spacing = ct_slice_spacing_mm(config);
   // Position in CT slices: CT slice j lies at position j.
-  const double p = (colour_z_mm(config, colour_k) - config.ct->z_offset_mm) / spacing;
+  const double p = (colour_z_mm(config, colour_slot) - config.ct->z_offset_mm) / spacing;
   if (p < -kOnSlice || p > ct_count - 1 + kOnSlice) return at;
   const double nearest = std::round(p);
   if (std::abs(p - nearest) <= kOnSlice) {
@@ -47,10 +129,10 @@ CtAtZ ct_at_colour_slice(const Config& config, int ct_count, int colour_k) {
   return at;
 }
 
-int seg_at_colour_slice(const Config& config, int seg_count, int colour_k) {
+int seg_at_colour_slice(const Config& config, int seg_count, int colour_slot) {
   if (!config.seg || !config.seg->slice_spacing_mm || seg_count <= 0) return -1;
   const double spacing = *config.seg->slice_spacing_mm;
-  const double p = (colour_z_mm(config, colour_k) - config.seg->z_offset_mm) / spacing;
+  const double p = (colour_z_mm(config, colour_slot) - config.seg->z_offset_mm) / spacing;
   const double nearest = std::round(p);
   // Half a spacing from the nearest slice, or beyond the stack's ends by more than that: none.
   if (nearest < 0 || nearest > seg_count - 1) return -1;
@@ -58,11 +140,19 @@ int seg_at_colour_slice(const Config& config, int seg_count, int colour_k) {
   return int(nearest);
 }
 
-int colour_slice_of_seg(const Config& config, int colour_count, int seg_j) {
+int colour_slice_of_seg(const Config& config, const std::vector<SliceFile>& colour, int seg_j) {
+  const int colour_count = int(colour.size());
   if (!config.seg || !config.seg->slice_spacing_mm) return std::clamp(seg_j, 0, colour_count - 1);
   const double z = config.seg->z_offset_mm + seg_j * *config.seg->slice_spacing_mm;
-  const double k = std::round(z / config.spacing_mm[2]);
-  return int(std::clamp(k, 0.0, double(colour_count - 1)));
+  const double slot = z / config.spacing_mm[2];
+  // The first placed slice at or after `slot`, or the one before it, whichever lies nearer.
+  auto it = std::lower_bound(colour.begin(), colour.end(), slot,
+                             [](const SliceFile& f, double s) { return f.slot < s; });
+  if (it == colour.end()) return colour_count - 1;
+  if (it == colour.begin()) return 0;
+  const auto before = it - 1;
+  // Without gaps this is std::round(slot): a tie goes to the later slice.
+  return int((slot - before->slot < it->slot - slot ? before : it) - colour.begin());
 }
 
 std::string check_z_extent(const Config& config, const std::string& input, int colour_count,

@@ -72,58 +72,33 @@ void check_no_missing_slice(const SliceSource& source, const std::vector<SliceFi
 
 std::vector<SliceFile> stack_slices(const Config& config) {
   std::vector<SliceFile> files = list_slices(config.rgb);
+  // Colour slice k lies at z = slot_k · spacing_mm[2], its slot from its file number (slice_z.h).
+  place_colour_slices(config, files);
   // CT slice j lies at z = ct.z_offset_mm + j · ct.slice_spacing_mm (slice_z.h): placed by its
   // position in the CT stack, so a CT slice missing inside the CT stack would shift every later
   // one (docs/RELIABILITY.md).
   if (config.ct) check_no_missing_slice(*config.ct, list_slices(*config.ct), "CT");
   // Never a silent mispairing along z (ConfigError when an input covers less than half
   // of the colour stack).
-  z_extent_warnings(config, int(files.size()));
+  z_extent_warnings(config, colour_slot_count(files));
   return files;
 }
 
 std::string colour_gap_warning(const Config& config, const std::vector<SliceFile>& colour) {
-  if (!config.ct && !(config.seg && config.seg->slice_spacing_mm)) return "";
-  // The step between numbers (the smallest), and within a number the letters a, b, c, ...
-  int step = 0;
-  for (std::size_t i = 1; i < colour.size(); ++i) {
-    const int d = colour[i].number - colour[i - 1].number;
-    if (d > 0 && (step == 0 || d < step)) step = d;
-  }
-  // Letters per number: the most any number has (a number with fewer, other than the last one of
-  // the stack, lacks some).
-  int letters = 0;
-  for (std::size_t i = 0, j = 0; i < colour.size(); i = j) {
-    for (j = i; j < colour.size() && colour[j].number == colour[i].number;)
-      ++j;
-    letters = std::max(letters, int(j - i));
-  }
-  int gaps = 0;
-  std::string first;
-  auto gap = [&](const std::string& what, std::size_t i) {
-    if (gaps++ == 0)
-      first = cat(what, " (", fs::path(colour[i - 1].path).filename().string(), " is followed by ",
-                  fs::path(colour[i].path).filename().string(), ")");
-  };
-  for (std::size_t i = 1; i < colour.size(); ++i) {
-    const SliceFile &a = colour[i - 1], &b = colour[i];
-    if (step > 0 && b.number - a.number > step) {
-      gap(cat("colour slice ", a.number + step, " is missing"), i);
-    } else if (b.number == a.number && a.letter >= 0 && b.letter != a.letter + 1) {
-      gap(cat("colour slice ", a.number, char('a' + a.letter + 1), " is missing"), i);
-    } else if (b.number != a.number && b.letter > 0) {
-      gap(cat("colour slice ", b.number, "a is missing"), i);
-    } else if (b.number != a.number && a.letter >= 0 && a.letter + 1 < letters) {
-      gap(cat("colour slice ", a.number, char('a' + a.letter + 1), " is missing"), i);
-    }
-  }
-  if (gaps == 0) return "";
-  return cat(config.rgb.dir, ": ", first, gaps > 1 ? cat(" and ", gaps - 1, " more gaps") : "",
-             ": colour slices are placed along z by their position in the stack, so every slice "
-             "after a gap lies one colour spacing (",
-             config.spacing_mm[2],
-             " mm) lower against the CT than its number says; supply the "
-             "missing slices (a black or duplicated file keeps the positions)");
+  const std::vector<MissingColourSlice> missing = missing_colour_slices(config, colour);
+  if (missing.empty()) return "";
+  // The files on either side of the first gap.
+  const MissingColourSlice& first = missing.front();
+  std::size_t after = 1;
+  while (after < colour.size() && colour[after].slot < first.slot)
+    ++after;
+  return cat(config.rgb.dir, ": colour slice ", first.name, " is missing (",
+             fs::path(colour[after - 1].path).filename().string(), " is followed by ",
+             fs::path(colour[after].path).filename().string(), ")",
+             missing.size() > 1 ? cat(" and ", missing.size() - 1, " more") : "",
+             ": every colour slice keeps its z from its file number (",
+             config.ct || config.seg ? "the CT and the segmentation are paired by it; " : "",
+             "the packed volume has no slice there, listed in its slices.missing_slices)");
 }
 
 std::vector<std::string> z_extent_warnings(const Config& config, int colour_count) {

@@ -66,9 +66,9 @@ cv::Mat read_ct_hu(const CtSource& ct, const std::string& path) {
 }
 
 cv::Mat ct_hu_at_colour_slice(const Config& config, const std::vector<SliceFile>& ct_files,
-                              int colour_k) {
+                              int colour_slot) {
   if (!config.ct) return {};
-  const CtAtZ at = ct_at_colour_slice(config, int(ct_files.size()), colour_k);
+  const CtAtZ at = ct_at_colour_slice(config, int(ct_files.size()), colour_slot);
   if (!at.inside()) return {};
   const std::string& below = ct_files[std::size_t(at.below)].path;
   cv::Mat hu = read_ct_hu(*config.ct, below);
@@ -87,10 +87,11 @@ cv::Mat ct_hu_at_colour_slice(const Config& config, const std::vector<SliceFile>
 CtSlice read_ct_slice(const Config& config, const StackInputs& inputs, int index, bool for_mask) {
   CtSlice ct;
   if (!config.ct) return ct;
-  const CtAtZ at = ct_at_colour_slice(config, int(inputs.ct.size()), index);
+  const CtAtZ at =
+      ct_at_colour_slice(config, int(inputs.ct.size()), inputs.rgb[std::size_t(index)].slot);
   if (!at.inside()) return ct;
   ct.path = inputs.ct[std::size_t(at.nearest())].path;
-  ct.hu = ct_hu_at_colour_slice(config, inputs.ct, index);
+  ct.hu = ct_hu_at_colour_slice(config, inputs.ct, inputs.rgb[std::size_t(index)].slot);
   const double level = mask_edge_level_hu(config.mask.hu_threshold);
   auto neighbour_size = [&](const cv::Mat& hu, const std::string& path) {
     if (hu.size() != ct.hu.size())

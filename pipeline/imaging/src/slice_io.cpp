@@ -16,6 +16,7 @@
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
 #include "vispack/common/image_io.h"
+#include "vispack/pipeline/imaging/genesis.h"
 
 namespace vispack::pipeline {
 namespace {
@@ -50,18 +51,54 @@ cv::Mat read_raw(const std::string& path, const RawLayout& raw, std::uint64_t fi
   const int bytes_per_sample = raw.bits / 8;
   check_size(path, raw.width, raw.height, raw.channels, bytes_per_sample);
   const std::uint64_t pixels = std::uint64_t(raw.width) * std::uint64_t(raw.height);
-  const std::uint64_t expected = raw.header_bytes + pixels * raw.channels * bytes_per_sample;
+  const std::uint64_t sample_bytes = pixels * raw.channels * bytes_per_sample;
+  // Where the samples start: header_bytes, or with raw.header "genesis" the file's own header
+  // (genesis.h), checked against the config before the size is.
+  std::uint64_t header = raw.header_bytes;
+  std::string bytes;
+  if (raw.genesis) {
+    if (file_size > sample_bytes + (std::uint64_t(1) << 20))
+      throw InputError(cat(path, ": raw slice has ", file_size, " bytes, over the ", sample_bytes,
+                           " of its samples plus 1 MiB of GE Genesis header"));
+    bytes = read_file(path, std::size_t(file_size) + 1);
+    const GenesisHeader g = parse_genesis_header(path, bytes, bytes.size());
+    auto disagree = [&](const char* field, std::int64_t value, const char* key, int configured) {
+      if (value != configured)
+        throw InputError(cat(path, ": GE Genesis header field ", field, " is ", value,
+                             ", the config's raw.", key, " is ", configured));
+    };
+    disagree("width", g.width, "width", raw.width);
+    disagree("height", g.height, "height", raw.height);
+    disagree("depth", g.bits, "bits", raw.bits);
+    header = std::uint64_t(g.pixel_offset);
+  } else if (raw.channels == 1 && raw.bits == 16 && file_size >= kGenesisFixedBytes) {
+    // A GE Genesis image read with a fixed header_bytes: its own header says where the samples
+    // start; a header_bytes that differs would read header bytes as pixels (or skip pixels).
+    std::string head(kGenesisFixedBytes, '\0');
+    std::ifstream in(path, std::ios::binary);
+    if (in.read(head.data(), std::streamsize(head.size())) && has_genesis_magic(head)) {
+      const GenesisHeader g = parse_genesis_header(path, head, file_size);
+      if (std::uint64_t(g.pixel_offset) != raw.header_bytes)
+        throw InputError(cat(path,
+                             ": a GE Genesis image (magic IMGF) whose header puts the "
+                             "pixels at byte ",
+                             g.pixel_offset, ", but raw.header_bytes is ", raw.header_bytes,
+                             "; set raw.header to \"genesis\""));
+    }
+  }
+  const std::uint64_t expected = header + sample_bytes;
   if (file_size != expected) {
     throw InputError(cat(path, ": raw slice has ", file_size, " bytes, expected ", expected, " (",
                          raw.width, "x", raw.height, "x", raw.channels, " at ", raw.bits,
-                         " bit, header ", raw.header_bytes, " bytes)"));
+                         " bit, header ", header, " bytes",
+                         raw.genesis ? " by its GE Genesis header" : "", ")"));
   }
-  const std::string bytes = read_file(path, expected + 1);
+  if (!raw.genesis) bytes = read_file(path, expected + 1);
   if (bytes.size() != expected) {
     throw InputError(cat(path, ": raw slice changed size while reading (", bytes.size(),
                          " bytes, expected ", expected, ")"));
   }
-  const auto* data = reinterpret_cast<const std::uint8_t*>(bytes.data()) + raw.header_bytes;
+  const auto* data = reinterpret_cast<const std::uint8_t*>(bytes.data()) + header;
   const int type = CV_MAKETYPE(raw.bits == 8 ? CV_8U : CV_16U, raw.channels);
   cv::Mat image(raw.height, raw.width, type);
   const int channels = raw.channels;

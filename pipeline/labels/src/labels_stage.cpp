@@ -78,7 +78,8 @@ LabelsStageJob::LabelsStageJob(const Config& config, const StageOptions& options
 
 std::string LabelsStageJob::seg_path(int k) const {
   if (config_.seg->slice_spacing_mm) {
-    const int seg_j = seg_at_colour_slice(config_, int(seg_files_.size()), k);
+    const int seg_j =
+        seg_at_colour_slice(config_, int(seg_files_.size()), stack_[std::size_t(k)].slot);
     return seg_j < 0 ? "" : seg_files_[std::size_t(seg_j)].path;
   }
   const SliceFile& colour = stack_[std::size_t(k)];
@@ -88,8 +89,9 @@ std::string LabelsStageJob::seg_path(int k) const {
 
 int LabelsStageJob::seg_grid_slice(int k) const {
   if (!config_.seg->slice_spacing_mm) return k;
-  const int seg_j = seg_at_colour_slice(config_, int(seg_files_.size()), k);
-  return seg_j < 0 ? k : colour_slice_of_seg(config_, int(stack_.size()), seg_j);
+  const int seg_j =
+      seg_at_colour_slice(config_, int(seg_files_.size()), stack_[std::size_t(k)].slot);
+  return seg_j < 0 ? k : colour_slice_of_seg(config_, stack_, seg_j);
 }
 
 std::string LabelsStageJob::input_fingerprint(int k) const {

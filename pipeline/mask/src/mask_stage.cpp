@@ -57,7 +57,8 @@ MaskStageJob::MaskStageJob(const Config& config, const StackInputs& inputs,
 std::string MaskStageJob::input_fingerprint(int k) const {
   // The registered colour is rebuilt from input slice k and transforms.json (a stage input:
   // a new transforms.json reruns every slice).
-  const CtAtZ at = ct_at_colour_slice(config_, int(inputs_.ct.size()), k);
+  const CtAtZ at =
+      ct_at_colour_slice(config_, int(inputs_.ct.size()), inputs_.rgb[std::size_t(k)].slot);
   Fingerprint fp;
   // v2: colour from the input slice; v3: every body part; v4: continuity along z, elongated
   // parts of soft tissue (docs/ARCHITECTURE.md, 'The body mask: every part is body').
@@ -77,7 +78,9 @@ std::string MaskStageJob::input_fingerprint(int k) const {
 
 std::vector<std::string> MaskStageJob::outputs(int k) const {
   std::vector<std::string> outs = {mask_path(config_, k), run_.slice_path("overlay", k)};
-  const bool has_ct = ct_at_colour_slice(config_, int(inputs_.ct.size()), k).inside();
+  const bool has_ct =
+      ct_at_colour_slice(config_, int(inputs_.ct.size()), inputs_.rgb[std::size_t(k)].slot)
+          .inside();
   if (has_ct && config_.work.write_ct) outs.push_back(mask_ct_path(config_, k));
   return outs;
 }

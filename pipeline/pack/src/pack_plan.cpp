@@ -10,6 +10,7 @@
 #include "vispack/pipeline/core/overrides.h"
 #include "vispack/pipeline/core/palette.h"
 #include "vispack/pipeline/core/slice_list.h"
+#include "vispack/pipeline/core/slice_z.h"
 #include "vispack/pipeline/core/version.h"
 
 namespace vispack::pipeline::detail {
@@ -137,6 +138,12 @@ void plan_metadata(const Config& config, PackPlan& plan) {
   for (int k = 1; k < n; ++k)
     for (int m = numbers[k - 1] + 1; m < numbers[k] && missing.size() < 100000; ++m)
       missing.push_back(m);
+  // Every colour slot no file fills (slice_z.h): a missing number, or with {n}{a} a missing
+  // letter ("1002b"), each a slice the volume lacks.
+  std::vector<std::string> missing_slices;
+  for (const auto& m : missing_colour_slices(config, stack))
+    missing_slices.push_back(m.name);
+  plan.missing_slices = missing_slices.size();
   std::string names;
   for (const auto& s : stack)
     names += cat(fs::path(s.path).filename().string(), ":", fs::file_size(s.path), "\n");
@@ -153,6 +160,7 @@ void plan_metadata(const Config& config, PackPlan& plan) {
         {"first_number", n ? numbers.front() : 0},
         {"numbers", numbers},
         {"missing_numbers", missing},
+        {"missing_slices", missing_slices},
         {"black", black},
         {"duplicated", duplicated}}},
       {"registration",
@@ -220,6 +228,7 @@ void report_pack(StageRun& run, const Config& config, const PackPlan& plan,
   run.set_quality("black_slices", plan.black);
   run.set_quality("duplicated_slices", plan.duplicated);
   run.set_quality("missing_numbers", plan.missing.size());
+  run.set_quality("missing_slices", plan.missing_slices);
 }
 
 }  // namespace vispack::pipeline::detail

@@ -37,8 +37,9 @@ struct PackPlan {
   bool has_ct = false, has_labels = false;
   format::WriterOptions wo;
   std::vector<PaletteEntry> palette;
-  std::vector<int> missing, black, duplicated;
-  std::string input;  // the whole pack's input fingerprint (a merge records the same)
+  std::vector<int> missing, black, duplicated;  // missing: file numbers absent inside the stack
+  std::size_t missing_slices = 0;  // colour slots no file fills (slice_z.h), letters included
+  std::string input;               // the whole pack's input fingerprint (a merge records the same)
 };
 
 // The union of the body masks' bounding boxes over the stack's `slice_count` slices of the

@@ -37,7 +37,8 @@ std::string slab_input(const Config& config, const PackPlan& plan, std::int64_t 
   for (int k = first; k < last; ++k) {
     fp.file(plan.inputs.rgb[std::size_t(k)].path).file(mask_path(config, k));
     if (config.ct) {
-      const CtAtZ at = ct_at_colour_slice(config, int(plan.inputs.ct.size()), k);
+      const CtAtZ at = ct_at_colour_slice(config, int(plan.inputs.ct.size()),
+                                          plan.inputs.rgb[std::size_t(k)].slot);
       fp.text(at.inside() ? hex64(xxh64_file(plan.inputs.ct[std::size_t(at.below)].path))
                           : std::string("no CT slice"));
       if (at.inside() && !at.exact())

@@ -101,7 +101,7 @@ std::string pair_fingerprint(const Config& config, const std::vector<SliceFile>&
     fp.file(files[std::size_t(j)].path);
   if (anchored) {
     fp.text(config_section_hash(config, {"ct", "mask.hu_threshold", "mask.min_part_mm2"}));
-    const CtAtZ at = ct_at_colour_slice(config, int(ct_files.size()), k);
+    const CtAtZ at = ct_at_colour_slice(config, int(ct_files.size()), files[std::size_t(k)].slot);
     const SliceFile* ct = at.inside() ? &ct_files[std::size_t(at.below)] : nullptr;
     fp.text(ct ? ct->path : "no CT slice");
     if (ct) fp.file(ct->path);
@@ -193,11 +193,12 @@ RegisterFrame read_frame(RegisterRun& r, int k, cv::Size stack_size, double anch
 // (register.ct_anchor_between).
 std::optional<AnchorEstimate> anchor_of(RegisterRun& r, int k, const RegisterFrame& f) {
   const Config& config = r.config;
-  const CtAtZ at = ct_at_colour_slice(config, int(r.ct_files.size()), k);
+  const CtAtZ at = ct_at_colour_slice(config, int(r.ct_files.size()), r.files[std::size_t(k)].slot);
   if (!at.inside()) return std::nullopt;
   const bool nearest = !at.exact() && r.reg.ct_anchor_between == "nearest";
-  const cv::Mat hu = nearest ? read_ct_hu(*config.ct, r.ct_files[std::size_t(at.nearest())].path)
-                             : ct_hu_at_colour_slice(config, r.ct_files, k);
+  const cv::Mat hu = nearest
+                         ? read_ct_hu(*config.ct, r.ct_files[std::size_t(at.nearest())].path)
+                         : ct_hu_at_colour_slice(config, r.ct_files, r.files[std::size_t(k)].slot);
   r.bytes += hu.total() * 2;
   AnchorEstimate est = estimate_ct_anchor(f, hu, *r.ct_to_rgb, r.anchor_options);
   if (nearest) {
@@ -458,7 +459,7 @@ void write_slice_outputs(RegisterRun& r, const StackTransforms& st, const StackI
   StageRun& run = r.run;
   const bool write_registered = config.work.write_registered;
   const SliceTransform& t = st.slices[std::size_t(k)];
-  const CtAtZ at = ct_at_colour_slice(config, int(ct_files.size()), k);
+  const CtAtZ at = ct_at_colour_slice(config, int(ct_files.size()), files[std::size_t(k)].slot);
   Fingerprint in_fp;
   in_fp.file(files[std::size_t(k)].path)
       .number(t.rigid.dx_px)
@@ -481,7 +482,8 @@ void write_slice_outputs(RegisterRun& r, const StackTransforms& st, const StackI
     fs::remove(out, ec);
   }
   cv::Mat hu;
-  if (at.inside() && st.ct_to_rgb) hu = ct_hu_at_colour_slice(config, ct_files, k);
+  if (at.inside() && st.ct_to_rgb)
+    hu = ct_hu_at_colour_slice(config, ct_files, files[std::size_t(k)].slot);
   const Similarity ct_to_rgb = st.ct_to_rgb ? *st.ct_to_rgb : Similarity{};
   const cv::Mat kept = write_registered ? cv::Mat() : recorded_picture(config, k);
   if (!kept.empty()) {
@@ -530,7 +532,7 @@ StageResult run_register_stage(const Config& config, const StageOptions& options
   const int n = int(files.size());
   // CT or segmentation extents that differ from the colour stack's (slice_z.h): reported with
   // the solve's warnings.
-  std::vector<std::string> z_warnings = z_extent_warnings(config, n);
+  std::vector<std::string> z_warnings = z_extent_warnings(config, colour_slot_count(files));
   if (std::string gap = colour_gap_warning(config, files); !gap.empty())
     z_warnings.push_back(std::move(gap));
   for (const auto& w : z_warnings)

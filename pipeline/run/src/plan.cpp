@@ -7,6 +7,7 @@
 #include "vispack/common/error.h"
 #include "vispack/pipeline/core/layout_check.h"
 #include "vispack/pipeline/core/slice_list.h"
+#include "vispack/pipeline/core/slice_z.h"
 #include "vispack/pipeline/core/work_layout.h"
 #include "vispack/pipeline/imaging/slice_io.h"
 #include "vispack/pipeline/labels/labels_stage.h"
@@ -54,7 +55,7 @@ Plan plan_run(const Config& config) {
     plan.stages.push_back(name);
   }
   plan.pack_slab_slices = config.pack.brick_edge;
-  plan.warnings = z_extent_warnings(config, plan.slices);
+  plan.warnings = z_extent_warnings(config, colour_slot_count(stack));
   if (std::string gap = colour_gap_warning(config, stack); !gap.empty())
     plan.warnings.push_back(std::move(gap));
 

@@ -32,6 +32,11 @@ struct RawLayout {
   int bits = 8;         // 8 or 16
   bool big_endian = false;
   std::uint64_t header_bytes = 0;  // bytes skipped at the start of each file
+  // raw.header "genesis": each file is a GE Genesis (Signa 5.x) image, the NLM male's CT .fre:
+  // the pixel data's offset, width, height and bit depth come from the file's own header (magic
+  // "IMGF"), checked against width, height and bits; header_bytes is unused (0). Big-endian
+  // samples unless `endian` says otherwise (slice_io.h read_slice).
+  bool genesis = false;
 };
 
 // One slice folder: files matched by `pattern` ({n} = the slice number), sorted by number.

@@ -14,6 +14,10 @@ struct SliceFile {
   int number;        // the number parsed from the file name where the pattern has {n}
   std::string path;  // absolute (source.dir + "/" + file name)
   int letter = -1;   // with {n}{a}: the letter after the number, 0 = 'a' .. 25 = 'z'; else -1
+  // Colour slices only: the slice's place along z in colour slice spacings from the stack's first
+  // file, from its file number (and letter): slice_z.h place_colour_slices, set by stack_slices
+  // (work_layout.h). z = slot · spacing_mm[2]. −1 where nothing placed it (list_slices).
+  int slot = -1;
 };
 
 // Files of a SliceSource whose names match its pattern ({n} = one or more decimal digits),

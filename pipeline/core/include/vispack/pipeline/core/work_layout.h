@@ -32,7 +32,9 @@ std::string mask_path(const Config& config, int index);
 std::string mask_ct_path(const Config& config, int index);
 std::string labels_path(const Config& config, int index);
 
-// The colour stack: list_slices(config.rgb). Its order defines the stack index k (= output z).
+// The colour stack: list_slices(config.rgb), each file placed along z by its number
+// (slice_z.h place_colour_slices: SliceFile::slot). Its order defines the stack index k (= output
+// z). Throws what place_colour_slices throws (a letter beyond the spacing: InputError).
 // Throws InputError when a CT slice is missing inside the CT stack, ConfigError when the CT or
 // the segmentation covers less than half the colour stack's z extent (z_extent_warnings).
 std::vector<SliceFile> stack_slices(const Config& config);
@@ -46,16 +48,16 @@ void check_no_missing_slice(const SliceSource& source, const std::vector<SliceFi
                             const std::string& what);
 
 // The z extent checks of slice_z.h check_z_extents for the config's CT and segmentation folders
-// against a colour stack of `colour_count` slices: the warnings (extents that differ by more than
-// two of the input's slices); throws ConfigError (exit 5) naming the key when an input covers
-// less than half of the colour stack.
+// against a colour stack spanning `colour_count` slots (colour_slot_count): the warnings (extents
+// that differ by more than two of the input's slices); throws ConfigError (exit 5) naming the key
+// when an input covers less than half of the colour stack.
 std::vector<std::string> z_extent_warnings(const Config& config, int colour_count);
 
-// A gap in the colour stack's file numbers (a number missing; with {n}{a}, a letter missing before
-// the last one of its number) where a CT or a segmentation at its own spacing is configured:
-// colour slices are placed along z by their position in the stack (slice_z.h), so every slice
-// after the gap lies one colour spacing lower against the CT than its number says. The warning
-// names the first gap and how many there are; "" when there is none (or nothing to pair with).
+// A gap in the colour stack (slice_z.h missing_colour_slices: a number missing; with {n}{a}, a
+// letter): every colour slice keeps its z from its file number, so the CT and the segmentation
+// stay paired right, but the packed volume has no slice there. The warning names the first
+// missing slice and its neighbours and how many more there are; "" when none is missing. Needs a
+// placed stack (stack_slices).
 std::string colour_gap_warning(const Config& config, const std::vector<SliceFile>& colour);
 
 // The register stage's transforms for a stack of `slice_count` slices: reads

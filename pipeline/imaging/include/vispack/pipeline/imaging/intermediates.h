@@ -26,13 +26,13 @@ cv::Mat registered_colour(const Config& config, const StackInputs& inputs, int i
 // naming the file when it is not single-channel.
 cv::Mat read_ct_hu(const CtSource& ct, const std::string& path);
 
-// The CT in HU (CV_32F, CT resolution) at the z of colour slice `colour_k` (slice_z.h): the one CT
-// slice read as is when the colour slice lies on it (the 1:1 case), else the two CT slices around
-// its z blended linearly in HU; empty outside the CT's z range or without CT. `ct_files` is the
-// CT stack (list_slices(*config.ct)). Throws InputError naming a file that is not single-channel
-// or whose size differs from its neighbour's.
+// The CT in HU (CV_32F, CT resolution) at the z of colour slot `colour_slot` (slice_z.h:
+// files[k].slot for colour slice k): the one CT slice read as is when the colour slice lies on it
+// (the 1:1 case), else the two CT slices around its z blended linearly in HU; empty outside the
+// CT's z range or without CT. `ct_files` is the CT stack (list_slices(*config.ct)). Throws
+// InputError naming a file that is not single-channel or whose size differs from its neighbour's.
 cv::Mat ct_hu_at_colour_slice(const Config& config, const std::vector<SliceFile>& ct_files,
-                              int colour_k);
+                              int colour_slot);
 
 // The CT at output slice k's z in HU (ct_hu_at_colour_slice) and the map from output pixels to
 // its pixels (imaging/transforms.h output_to_ct with transforms.json's ct_to_rgb, else the config's

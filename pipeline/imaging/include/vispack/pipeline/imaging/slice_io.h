@@ -29,7 +29,12 @@ inline constexpr std::uint64_t kMaxImageBytes = std::uint64_t(1) << 31;
 // the file name says; no other of its readers is tried); with `raw` it is read as a
 // header-less raw slice: `header_bytes` skipped, then width*height*channels samples of `bits`
 // each, planar or interleaved, in the declared byte order; the file size must be exactly
-// header_bytes + that many bytes.
+// header_bytes + that many bytes. With raw.header "genesis" (RawLayout::genesis) the file is a GE
+// Genesis image (genesis.h): the samples start where its own header says, and its width, height
+// and depth must equal the layout's, else an InputError naming the file, the header field and the
+// config key; the file size must be exactly that offset + the samples. Without it, a 16-bit grey
+// file that starts with the Genesis magic "IMGF" and whose header puts the samples elsewhere than
+// header_bytes is refused the same way (naming both offsets and raw.header).
 // Throws InputError naming the file: unreadable, zero bytes, truncated or corrupt, unsupported
 // channel count, not one of those formats, a BMP compression that does not fit its bits per pixel,
 // raw size mismatch, or larger than kMaxImageEdge / kMaxImageBytes.
