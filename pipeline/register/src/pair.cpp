@@ -24,17 +24,24 @@ constexpr int kLookBack = 4;  // edges reach back over at most 4 slices
 // Fine ECC stops when the correlation improves by less than this per iteration: from the
 // coarse estimate (within ~0.1 coarse px) it converges in a few iterations.
 constexpr double kFineEps = 1e-5;
+// ... and after an update that moves no pixel by more than this many full-resolution pixels
+// (EccOptions::min_step_px; 0.01 px of the fine level at ecc_scale 0.5): a tenth or less of the
+// pair's own error, and one pass over the image less on most pairs (docs/BENCHMARKS.md
+// "Register stage: CPU per slice").
+constexpr double kFineStepFullPx = 0.02;
 
 // ECC at one level; `m` (full-resolution j→k matrix) is updated in place on success. Returns
 // rho, or nullopt where ECC fails (m unchanged). `too_far` (optional) is given each iterate as a
 // full-resolution matrix; true fails the refinement at once (EccOptions::diverged).
 std::optional<double> ecc_level(const cv::Mat& from, const cv::Mat& to, double scale,
                                 cv::Matx23d& m, int iterations, double eps,
-                                const std::function<bool(const cv::Matx23d&)>& too_far = {}) {
+                                const std::function<bool(const cv::Matx23d&)>& too_far = {},
+                                double min_step_full_px = 0.0) {
   cv::Matx23d ms = scale_affine(m, scale);
   EccOptions options;
   options.iterations = iterations;
   options.eps = eps;
+  options.min_step_px = min_step_full_px * scale;
   options.blur_size = 1;  // the frames are pre-blurred (prepare_frame)
   if (too_far)
     options.diverged = [&](const cv::Matx23d& w) { return too_far(unscale_affine(w, scale)); };
@@ -66,12 +73,12 @@ bool refine_fine(const RegisterFrame& from, const RegisterFrame& to, const Regis
   if (!from.middle.empty() && from.middle.size() == to.middle.size()) {
     cv::Matx23d mm = m;
     if (ecc_level(from.middle, to.middle, from.middle_scale, mm,
-                  std::max(1, options.ecc_iterations), kFineEps, too_far))
+                  std::max(1, options.ecc_iterations), kFineEps, too_far, kFineStepFullPx))
       m = mm;
   }
   const std::optional<double> rho =
       ecc_level(from.fine, to.fine, from.fine_scale, m, std::max(1, options.ecc_iterations),
-                kFineEps, too_far);
+                kFineEps, too_far, kFineStepFullPx);
   if (!rho) return false;  // ECC did not converge, or ran away
   const Rigid refined = rigid_from_matrix(m, centre);
   if (travel(refined) < reach) {
