@@ -197,16 +197,29 @@ TEST(Ecc, FailuresAreReported) {
   EXPECT_THROW(vp::ecc_euclidean(tmpl8, input8, w2, even), vispack::Error);
 }
 
+// A 300×220 textured input, the template it shows through a rotation by θ about the centre and
+// a shift d, and the identity start: the case of the tests of the options below.
+struct MovedCase {
+  cv::Size size{300, 220};
+  cv::Point2d c{0.5 * (300 - 1), 0.5 * (220 - 1)};
+  cv::Mat input, tmpl;
+  cv::Matx23d truth, start;
+  MovedCase(unsigned seed, double theta_deg, cv::Point2d d)
+      : input(texture(size, seed, 3.0)),
+        truth(rigid(theta_deg, d, c)),
+        start(rigid(0.0, {0.0, 0.0}, c)) {
+    tmpl = warp_to_template(input, truth, size);
+  }
+};
+
 // The caller's divergence test (EccOptions::diverged): asked after every update with that
 // update's warp; the first true ends the refinement as a failure with `warp` at that update; a
 // test that never fires leaves every step, and so the result, as without one.
 TEST(Ecc, DivergenceTestEndsTheIterationAtTheFirstIterateBeyondTheReach) {
-  const cv::Size size(300, 220);
-  const cv::Mat input = texture(size, 9, 3.0);
-  const cv::Point2d c(0.5 * (size.width - 1), 0.5 * (size.height - 1));
-  const cv::Matx23d truth = rigid(1.2, {3.0, -2.0}, c);
-  const cv::Mat tmpl = warp_to_template(input, truth, size);
-  const cv::Matx23d start = rigid(0.0, {0.0, 0.0}, c);
+  const MovedCase mc(9, 1.2, {3.0, -2.0});
+  const cv::Size size = mc.size;
+  const cv::Mat &input = mc.input, &tmpl = mc.tmpl;
+  const cv::Matx23d truth = mc.truth, start = mc.start;
   vp::EccOptions plain;
   plain.iterations = 40;
   plain.eps = 1e-9;
@@ -241,4 +254,70 @@ TEST(Ecc, DivergenceTestEndsTheIterationAtTheFirstIterateBeyondTheReach) {
   for (std::size_t i = 0; i + 1 < iterates.size(); ++i)
     EXPECT_LE(std::hypot(iterates[i](0, 2) - start(0, 2), iterates[i](1, 2) - start(1, 2)), 1.0);
   EXPECT_EQ(cv::norm(cv::Mat(near_warp), cv::Mat(iterates.back()), cv::NORM_INF), 0.0);
+}
+
+// The step stop (EccOptions::min_step_px): the path is the same as without it up to the first
+// update whose bound |Δt| + |Δθ| · diagonal falls under min_step_px, and ends there, as a
+// success, within that step's reach of the full path's end; 0 leaves every step as before.
+TEST(Ecc, StepStopEndsAtTheFirstUpdateSmallerThanTheMinimumStep) {
+  const MovedCase mc(11, 1.5, {4.0, -3.0});
+  const cv::Size size = mc.size;
+  const cv::Mat &input = mc.input, &tmpl = mc.tmpl;
+  const cv::Matx23d truth = mc.truth, start = mc.start;
+  const double diagonal = std::hypot(size.width - 1, size.height - 1);
+  // The full path (eps too small to stop it before the cap), every iterate recorded.
+  auto run = [&](double min_step, std::vector<cv::Matx23d>& iterates, cv::Matx23d& warp) {
+    vp::EccOptions o;
+    o.iterations = 30;
+    o.eps = 1e-12;
+    o.min_step_px = min_step;
+    o.diverged = [&](const cv::Matx23d& w) {
+      iterates.push_back(w);
+      return false;
+    };
+    warp = start;
+    return vp::ecc_euclidean(tmpl, input, warp, o);
+  };
+  std::vector<cv::Matx23d> full_path;
+  cv::Matx23d full_warp;
+  ASSERT_TRUE(run(0.0, full_path, full_warp).has_value());
+  EXPECT_LT(max_corner_px(full_warp, truth, size), 0.05);
+  auto bound = [&](const cv::Matx23d& a, const cv::Matx23d& b) {
+    return std::hypot(b(0, 2) - a(0, 2), b(1, 2) - a(1, 2)) +
+           std::abs(std::asin(b(1, 0)) - std::asin(a(1, 0))) * diagonal;
+  };
+  // The first update under 0.02 px, away from the threshold (no rounding decides it).
+  const double min_step = 0.02;
+  std::size_t first_small = 0;
+  for (cv::Matx23d prev = start; first_small < full_path.size(); prev = full_path[first_small++])
+    if (bound(prev, full_path[first_small]) < min_step) break;
+  ASSERT_LT(first_small + 2, full_path.size()) << "the full path must run on past that update";
+  ASSERT_GT(first_small, 0u);
+  const double at_stop = bound(full_path[first_small - 1], full_path[first_small]);
+  ASSERT_LT(at_stop, 0.9 * min_step);
+  ASSERT_GT(
+      bound(first_small >= 2 ? full_path[first_small - 2] : start, full_path[first_small - 1]),
+      1.1 * min_step);
+
+  std::vector<cv::Matx23d> path;
+  cv::Matx23d warp;
+  const std::optional<double> rho = run(min_step, path, warp);
+  ASSERT_TRUE(rho.has_value());
+  ASSERT_EQ(path.size(), first_small + 1);  // stopped right after that update
+  for (std::size_t i = 0; i < path.size(); ++i)
+    EXPECT_EQ(cv::norm(cv::Mat(path[i]), cv::Mat(full_path[i]), cv::NORM_INF), 0.0) << i;
+  EXPECT_EQ(cv::norm(cv::Mat(warp), cv::Mat(path.back()), cv::NORM_INF), 0.0);
+  EXPECT_LT(max_corner_px(warp, full_warp, size), min_step);
+  EXPECT_LT(max_corner_px(warp, truth, size), 0.05);
+
+  // min_step_px 0: every step as without the option; a negative one is refused.
+  std::vector<cv::Matx23d> again;
+  cv::Matx23d again_warp;
+  ASSERT_TRUE(run(0.0, again, again_warp).has_value());
+  EXPECT_EQ(again.size(), full_path.size());
+  EXPECT_EQ(cv::norm(cv::Mat(again_warp), cv::Mat(full_warp), cv::NORM_INF), 0.0);
+  vp::EccOptions bad;
+  bad.min_step_px = -1.0;
+  cv::Matx23d w = start;
+  EXPECT_THROW(vp::ecc_euclidean(tmpl, input, w, bad), vispack::Error);
 }

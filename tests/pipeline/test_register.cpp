@@ -24,6 +24,7 @@
 #include "vispack/pipeline/core/work_layout.h"
 #include "vispack/pipeline/imaging/slice_io.h"
 #include "vispack/pipeline/imaging/transforms.h"
+#include "vispack/pipeline/register/ecc.h"
 #include "vispack/pipeline/register/register.h"
 #include "vispack/pipeline/register/register_stage.h"
 
@@ -140,6 +141,82 @@ INSTANTIATE_TEST_SUITE_P(Synthetic, PairTest,
                                            PairCase{{-1.3, -2.6, 3.1}},
                                            PairCase{{7.0, 29.0, -11.5}},  // a block jump
                                            PairCase{{-6.0, -18.25, 22.75}}));
+
+// A dissimilar pair (register/pair.h step 2; docs/BENCHMARKS.md "Register stage: CPU per
+// slice"): slice b shows slice a's texture 4 % larger about an off-centre point (as anatomy that
+// grows from slice to slice), so no rigid motion matches it. From the identity start its fine
+// ECC creeps, inside the reach, for more than 12 iterations after a middle pass under 0.9: that
+// start's result is not accepted (the fine pass stops at 10 iterations as a failure) and the
+// pair is measured by the full search, as without a start. The same texture moved rigidly with
+// 40 % of it replaced by another (as dissimilar by correlation, but a motion ECC converges to)
+// is measured from the start.
+TEST(Register, DissimilarPairThatKeepsCreepingIsNotMeasured) {
+  const cv::Size size(2048, 1216);  // the real size: the fine pass has a middle level first
+  auto texture = [&](std::uint64_t seed) {
+    cv::Mat t(size, CV_32F);
+    cv::RNG(seed).fill(t, cv::RNG::NORMAL, 0.0, 1.0);
+    cv::GaussianBlur(t, t, cv::Size(0, 0), 8.0);
+    cv::normalize(t, t, 20, 235, cv::NORM_MINMAX);
+    return t;
+  };
+  const cv::Mat base = texture(5), other = texture(6);
+  auto grey8 = [](const cv::Mat& f) {
+    cv::Mat g;
+    f.convertTo(g, CV_8U);
+    cv::Mat rgb;
+    cv::cvtColor(g, rgb, cv::COLOR_GRAY2RGB);
+    return rgb;
+  };
+  auto moved = [&](double zoom) {
+    cv::Mat m = cv::getRotationMatrix2D(cv::Point2f(600.f, 400.f), 0.0, zoom);
+    m.at<double>(0, 2) += 6.0;
+    m.at<double>(1, 2) -= 4.0;
+    cv::Mat out;
+    cv::warpAffine(base, out, m, size, cv::INTER_CUBIC, cv::BORDER_REFLECT);
+    return out;
+  };
+  vp::RegisterOptions options;  // phase+ecc, ecc_scale 0.5, 50 iterations
+  const vp::RegisterFrame a = vp::prepare_frame(grey8(base), options);
+  ASSERT_FALSE(a.middle.empty());
+  const vp::Rigid start{0.0, 0.0, 0.0};
+
+  // The premise, the pair's fine ECC by hand (register/pair.h step 2): after the middle pass,
+  // at a correlation under 0.9, the fine pass creeps on for more than 12 iterations and ends
+  // within the reach (32 px from the start: it would be accepted).
+  const vp::RegisterFrame grown = vp::prepare_frame(grey8(moved(1.04)), options);
+  vp::EccOptions probe;
+  probe.iterations = options.ecc_iterations;
+  probe.eps = 1e-5;
+  cv::Matx23d w(1, 0, 0, 0, 1, 0);
+  const std::optional<double> middle_rho = vp::ecc_euclidean(a.middle, grown.middle, w, probe);
+  ASSERT_TRUE(middle_rho.has_value());
+  EXPECT_LT(*middle_rho, 0.9);
+  const double up = a.fine_scale / a.middle_scale;
+  w(0, 2) *= up;
+  w(1, 2) *= up;
+  int updates = 0;
+  probe.diverged = [&](const cv::Matx23d&) { return ++updates < 0; };
+  ASSERT_TRUE(vp::ecc_euclidean(a.fine, grown.fine, w, probe).has_value());
+  EXPECT_GT(updates, 12);
+  EXPECT_LT(std::hypot(w(0, 2), w(1, 2)) / a.fine_scale, 32.0);
+
+  // That start's result is not accepted: the pair is measured by the full search (the coarse
+  // search's start, from which the fine pass converges), as without a start.
+  const vp::PairEstimate from_start = vp::estimate_pair(a, grown, options, &start);
+  const vp::PairEstimate searched = vp::estimate_pair(a, grown, options);
+  EXPECT_EQ(from_start.relative.dx_px, searched.relative.dx_px);
+  EXPECT_EQ(from_start.relative.dy_px, searched.relative.dy_px);
+  EXPECT_EQ(from_start.relative.rotation_deg, searched.relative.rotation_deg);
+
+  // Dissimilar by correlation, but converging: measured, at the true shift.
+  const vp::RegisterFrame mixed =
+      vp::prepare_frame(grey8(cv::Mat(0.6 * moved(1.0) + 0.4 * other)), options);
+  const vp::PairEstimate converging = vp::estimate_pair(a, mixed, options, &start);
+  EXPECT_TRUE(converging.ecc_ok);
+  EXPECT_LT(converging.quality, 0.9);
+  EXPECT_NEAR(converging.relative.dx_px, 6.0, 0.3);
+  EXPECT_NEAR(converging.relative.dy_px, -4.0, 0.3);
+}
 
 TEST(Register, BrightnessChangeDoesNotMoveTheEstimate) {
   cv::Mat a = textured_slice({256, 192}, 3);

@@ -31,6 +31,9 @@ constexpr float kHuLow = -1000.f, kHuHigh = 1000.f;  // template clamp
 // from the residuals where a stack's anchors are worse.
 constexpr double kSigmaWorkingPx = 0.05;
 constexpr double kSigmaRadiusWorkingPx = 10.0;
+// The multimodal and outline ECCs also stop after an update that moves no pixel by more than
+// this (working-grid pixels; EccOptions::min_step_px): a tenth of the anchor's own σ.
+constexpr double kStepWorkingPx = 0.1 * kSigmaWorkingPx;
 // The outline step (4) may move the translation this far (working pixels) and turn this far: on
 // a body a few working pixels across (the `tiny` preset) the outline alone turned 1–2° away from
 // a good multimodal estimate.
@@ -57,11 +60,14 @@ cv::Matx23d to_full(const cv::Matx23d& m, double sx, double sy) {
 // ECC on (template, input) from `m` (template → input pixels); updates m. Returns rho or −1.
 // `rejected` (optional): the caller's test of a result it would throw away; the iteration stops
 // as a failure at the first iterate that fails it (EccOptions::diverged), instead of creeping on.
+// `min_step_px` (this level's pixels): EccOptions::min_step_px.
 double ecc(const cv::Mat& tmpl, const cv::Mat& input, cv::Matx23d& m, int iterations, double eps,
-           int blur, std::function<bool(const cv::Matx23d&)> rejected = {}) {
+           int blur, std::function<bool(const cv::Matx23d&)> rejected = {},
+           double min_step_px = 0.0) {
   EccOptions options;
   options.iterations = iterations;
   options.eps = eps;
+  options.min_step_px = min_step_px;
   options.blur_size = blur;
   options.diverged = std::move(rejected);
   cv::Matx23d w = m;
@@ -362,8 +368,9 @@ std::optional<cv::Matx23d> refine_multimodal(const cv::Mat& tmpl, const cv::Mat&
     };
     // A wide blur widens the basin at half resolution; the final pass blurs less, as the
     // polynomial is applied before the blur (edges mixing two tissues map imperfectly).
-    rho = ecc(t, predicted, ml, iterations, 1e-5, level < 1.0 ? 5 : 3,
-              [&](const cv::Matx23d& w) { return too_far(w, kEccRunawayFactor); });
+    rho = ecc(
+        t, predicted, ml, iterations, 1e-5, level < 1.0 ? 5 : 3,
+        [&](const cv::Matx23d& w) { return too_far(w, kEccRunawayFactor); }, kStepWorkingPx * lx);
     if (rho < 0.0 || too_far(ml, 1.0)) return std::nullopt;
     start = to_full(ml, lx, ly);
   }
@@ -385,8 +392,10 @@ cv::Matx23d refine_outline(const cv::Mat& soft_ct, const cv::Mat& soft_colour, c
            std::abs(std::atan2(w(1, 0), w(0, 0)) - std::atan2(m(1, 0), m(0, 0))) <
                k * kOutlineTurnDeg * kPi / 180.0;
   };
-  if (ecc(soft_ct, soft_colour, outline, 2 * iterations, 1e-7, 3,
-          [&](const cv::Matx23d& w) { return !within(w, kEccRunawayFactor); }) > 0.0 &&
+  if (ecc(
+          soft_ct, soft_colour, outline, 2 * iterations, 1e-7, 3,
+          [&](const cv::Matx23d& w) { return !within(w, kEccRunawayFactor); },
+          kStepWorkingPx) > 0.0 &&
       within(outline, 1.0))
     return outline;
   return m;

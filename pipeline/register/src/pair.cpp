@@ -24,17 +24,31 @@ constexpr int kLookBack = 4;  // edges reach back over at most 4 slices
 // Fine ECC stops when the correlation improves by less than this per iteration: from the
 // coarse estimate (within ~0.1 coarse px) it converges in a few iterations.
 constexpr double kFineEps = 1e-5;
+// ... and after an update that moves no pixel by more than this many full-resolution pixels
+// (EccOptions::min_step_px; 0.01 px of the fine level at ecc_scale 0.5): a tenth or less of the
+// pair's own error, and one pass over the image less on most pairs (docs/BENCHMARKS.md
+// "Register stage: CPU per slice").
+constexpr double kFineStepFullPx = 0.02;
+// A pair whose middle-level correlation is under kDissimilarRho shows different anatomy more than
+// the same tissue moved: its ECC creeps a few tenths of a pixel an iteration towards wherever the
+// anatomy pulls. Its fine pass has kDissimilarFineIterations; one that has not converged by then
+// is a failure, as a path that ran past the reach is (docs/BENCHMARKS.md "Register stage: CPU
+// per slice").
+constexpr double kDissimilarRho = 0.9;
+constexpr int kDissimilarFineIterations = 10;
 
 // ECC at one level; `m` (full-resolution j→k matrix) is updated in place on success. Returns
 // rho, or nullopt where ECC fails (m unchanged). `too_far` (optional) is given each iterate as a
 // full-resolution matrix; true fails the refinement at once (EccOptions::diverged).
 std::optional<double> ecc_level(const cv::Mat& from, const cv::Mat& to, double scale,
                                 cv::Matx23d& m, int iterations, double eps,
-                                const std::function<bool(const cv::Matx23d&)>& too_far = {}) {
+                                const std::function<bool(const cv::Matx23d&)>& too_far = {},
+                                double min_step_full_px = 0.0) {
   cv::Matx23d ms = scale_affine(m, scale);
   EccOptions options;
   options.iterations = iterations;
   options.eps = eps;
+  options.min_step_px = min_step_full_px * scale;
   options.blur_size = 1;  // the frames are pre-blurred (prepare_frame)
   if (too_far)
     options.diverged = [&](const cv::Matx23d& w) { return too_far(unscale_affine(w, scale)); };
@@ -63,15 +77,25 @@ bool refine_fine(const RegisterFrame& from, const RegisterFrame& to, const Regis
   };
   // A first pass at the middle level (a quarter of the pixels): the fine pass then starts
   // where the middle one ended, a few fine iterations from its own optimum.
+  int fine_iterations = std::max(1, options.ecc_iterations);
+  bool capped = false;
   if (!from.middle.empty() && from.middle.size() == to.middle.size()) {
     cv::Matx23d mm = m;
-    if (ecc_level(from.middle, to.middle, from.middle_scale, mm,
-                  std::max(1, options.ecc_iterations), kFineEps, too_far))
-      m = mm;
+    const std::optional<double> rho_middle =
+        ecc_level(from.middle, to.middle, from.middle_scale, mm, fine_iterations, kFineEps, too_far,
+                  kFineStepFullPx);
+    if (rho_middle) m = mm;
+    if (rho_middle && *rho_middle < kDissimilarRho && fine_iterations > kDissimilarFineIterations)
+      fine_iterations = kDissimilarFineIterations, capped = true;
   }
+  // A capped pass that is still moving at its last update has not converged.
+  int updates = 0;
+  auto too_far_or_unconverged = [&](const cv::Matx23d& full) {
+    return too_far(full) || (capped && ++updates >= fine_iterations);
+  };
   const std::optional<double> rho =
-      ecc_level(from.fine, to.fine, from.fine_scale, m, std::max(1, options.ecc_iterations),
-                kFineEps, too_far);
+      ecc_level(from.fine, to.fine, from.fine_scale, m, fine_iterations, kFineEps,
+                too_far_or_unconverged, kFineStepFullPx);
   if (!rho) return false;  // ECC did not converge, or ran away
   const Rigid refined = rigid_from_matrix(m, centre);
   if (travel(refined) < reach) {

@@ -26,6 +26,12 @@ struct EccOptions {
   int iterations = 50;  // at most this many updates
   double eps = 1e-5;    // stop when the correlation changes by less than this
   int blur_size = 1;    // Gaussian blur (odd kernel size, σ from the size) of both images first
+  // Optional (not in OpenCV; 0 = off): also stop, as converged, after an update that moves no
+  // template pixel by more than this many pixels (of the template's grid). The bound used is
+  // |Δt| + |Δθ| · (the template's diagonal), never below the largest displacement. The
+  // correlation's gain alone (eps) needs one more pass over the image after a step this small,
+  // and on a slowly converging path keeps going long after the steps have become negligible.
+  double min_step_px = 0.0;
   // Optional (not in OpenCV): called with the warp after each update; returning true ends the
   // refinement as a failure (nullopt, `warp` holding that update). A caller that rejects a result
   // too far from its start says so here and stops an iteration that has run away (on slices
@@ -42,7 +48,9 @@ inline constexpr double kEccRunawayFactor = 2.0;
 
 // Refines `warp` (a rotation + translation, template → input pixels; its rotation part must be
 // a rotation) so that the warped input best correlates with `tmpl`, and returns the correlation
-// coefficient measured before the last update, in [-1, 1]. Returns nullopt where OpenCV would
+// coefficient measured before the last update, in [-1, 1]. It stops after `iterations` updates,
+// when the correlation changed by less than `eps` between two updates, or (min_step_px > 0)
+// after an update smaller than min_step_px. Returns nullopt where OpenCV would
 // throw: the images are uncorrelated or do not overlap (λ's denominator ≤ 0), no template pixel
 // maps into the input, or a value is not finite; `warp` then holds the last estimate.
 // tmpl and input: one channel, CV_8U or CV_32F, any sizes (at least 3 × 3); not modified.

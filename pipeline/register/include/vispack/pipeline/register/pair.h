@@ -9,8 +9,12 @@
 //   2. ECC at ecc_scale from the coarse estimate (at most register.ecc_iterations iterations,
 //      stopping when the correlation no longer improves), after a first pass at half ecc_scale
 //      where that lies well above the coarse level (2048×1216 at ecc_scale 0.5: 512 then 1024
-//      px wide). A result more than 4 coarse pixels from the start is a failure; either pass
-//      stops at its first iterate twice that far (ecc.h kEccRunawayFactor). The final
+//      px wide). Either pass also stops after an update under 0.02 full-resolution px
+//      (EccOptions::min_step_px). A result more than 4 coarse pixels from the start is a
+//      failure; either pass stops at its first iterate twice that far (ecc.h
+//      kEccRunawayFactor). Where the first pass's correlation is under 0.9 (the slices differ
+//      in anatomy more than they move; ECC creeps), the fine pass has at most 10 iterations
+//      and one still moving at the 10th is a failure too. The final
 //      correlation coefficient is the pair's quality. If ECC fails, the phase estimate is kept
 //      with quality <= 0.5.
 //   "phase" stops after the sweep (quality = normalised correlation); "none" gives identities.
