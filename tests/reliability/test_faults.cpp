@@ -168,15 +168,17 @@ class Faults : public ::testing::Test {
   // Every output of the first run is still there: products (images, transforms.json, the
   // packed and VDB files) with the same bytes; bookkeeping (manifest.json, report.json,
   // register/pairs/*.json, which record absolute input paths and so legitimately change in a
-  // copied tree) still complete JSON. No temporary is left.
+  // copied tree) still complete JSON; the pairs' QC pictures (register/pairs/*.png) are products.
+  // No temporary is left.
   void expect_earlier_outputs_intact() const {
     for (const auto& [dir, before] : {std::pair{"work", &before_work_}, {"out", &before_out_}}) {
       const auto now = snapshot(path(dir));
       for (const auto& [rel, hash] : *before) {
         auto it = now.find(rel);
         const std::string name = fs::path(rel).filename().string();
-        const bool bookkeeping = name == "manifest.json" || name == "report.json" ||
-                                 rel.find("pairs/") != std::string::npos;
+        const bool bookkeeping =
+            name == "manifest.json" || name == "report.json" ||
+            (rel.find("pairs/") != std::string::npos && fs::path(rel).extension() == ".json");
         if (it == now.end()) {
           ADD_FAILURE() << dir << "/" << rel << " disappeared";
         } else if (bookkeeping) {
