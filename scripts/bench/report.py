@@ -6,12 +6,12 @@ Usage: report.py RESULTS_DIR DOCS_DIR [--only SECTION[,SECTION...]]
           viewer, ...) from a results folder of a benchmark run alone, stamped with its commit"""
 import glob
 import os
-import re
 import sys
 
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import machine  # noqa: E402
+from kept_sections import read_kept_sections  # noqa: E402
 from report_common import load, plt, table  # noqa: E402
 from report_stages import StagesSection  # noqa: E402
 from report_registration import RegistrationSection  # noqa: E402
@@ -107,33 +107,12 @@ class Report(StagesSection, RegistrationSection, PackSection, ViewerSection, Sca
     # ---- stages against docs/GOALS.md §6 -----------------------------------
 
     def kept_sections(self):
-        """Sections of the current BENCHMARKS.md measured by hand (not by this script), marked
-        with a line `<!-- kept after: NAME; measured: COMMIT YYYY-MM-DD -->` (NAME: the generating
-        method they follow, e.g. registration; COMMIT and the date: when its numbers were
-        measured). They are carried over verbatim, so a full run does not lose them."""
-        path = os.path.join(self.docs, "BENCHMARKS.md")
-        kept = {}
-        if not os.path.exists(path):
-            return kept
-        sections, current = [], None
-        for line in open(path).read().splitlines():
-            if line.startswith("## "):
-                current = [line]
-                sections.append(current)
-            elif current is not None:
-                current.append(line)
-        for lines in sections:
-            for line in lines:
-                m = re.match(r"<!-- kept after: (\w+)(.*?)-->", line.strip())
-                if m:
-                    # A section carried over must say when it was measured (a commit and a date),
-                    # so a reader can tell how old a number is.
-                    if not re.match(r"; measured: [0-9a-f]{7,40} \d{4}-\d\d-\d\d $", m.group(2)):
-                        raise SystemExit(f"report.py: the kept section '{lines[0]}' has no "
-                                         "'measured: COMMIT YYYY-MM-DD' in its marker")
-                    kept.setdefault(m.group(1), []).append("\n".join(lines).rstrip() + "\n")
-                    break
-        return kept
+        """Sections of the current BENCHMARKS.md measured by hand (not by this script), carried
+        over verbatim so a full run does not lose them (kept_sections.py: the marker's form)."""
+        try:
+            return read_kept_sections(os.path.join(self.docs, "BENCHMARKS.md"))
+        except ValueError as e:
+            raise SystemExit(f"report.py: {e}")
 
     def write(self):
         kept = self.kept_sections()
