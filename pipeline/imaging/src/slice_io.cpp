@@ -71,13 +71,19 @@ cv::Mat read_raw(const std::string& path, const RawLayout& raw, std::uint64_t fi
     disagree("height", g.height, "height", raw.height);
     disagree("depth", g.bits, "bits", raw.bits);
     header = std::uint64_t(g.pixel_offset);
-  } else if (raw.channels == 1 && raw.bits == 16 && file_size >= kGenesisFixedBytes) {
+  } else if (file_size == header + sample_bytes) {
+    bytes = read_file(path, std::size_t(file_size) + 1);
+  } else if (file_size >= kGenesisFixedBytes) {
+    bytes.assign(kGenesisFixedBytes, '\0');  // the size check below refuses it: the head alone
+    std::ifstream in(path, std::ios::binary);
+    if (!in.read(bytes.data(), std::streamsize(bytes.size()))) bytes.clear();
+  }
+  if (!raw.genesis) {
     // A GE Genesis image read with a fixed header_bytes: its own header says where the samples
     // start; a header_bytes that differs would read header bytes as pixels (or skip pixels).
-    std::string head(kGenesisFixedBytes, '\0');
-    std::ifstream in(path, std::ios::binary);
-    if (in.read(head.data(), std::streamsize(head.size())) && has_genesis_magic(head)) {
-      const GenesisHeader g = parse_genesis_header(path, head, file_size);
+    if (raw.channels == 1 && raw.bits == 16 && bytes.size() >= kGenesisFixedBytes &&
+        has_genesis_magic(bytes)) {
+      const GenesisHeader g = parse_genesis_header(path, bytes, file_size);
       if (std::uint64_t(g.pixel_offset) != raw.header_bytes)
         throw InputError(cat(path,
                              ": a GE Genesis image (magic IMGF) whose header puts the "
@@ -93,7 +99,6 @@ cv::Mat read_raw(const std::string& path, const RawLayout& raw, std::uint64_t fi
                          " bit, header ", header, " bytes",
                          raw.genesis ? " by its GE Genesis header" : "", ")"));
   }
-  if (!raw.genesis) bytes = read_file(path, expected + 1);
   if (bytes.size() != expected) {
     throw InputError(cat(path, ": raw slice changed size while reading (", bytes.size(),
                          " bytes, expected ", expected, ")"));
