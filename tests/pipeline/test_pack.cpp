@@ -53,6 +53,16 @@ nlohmann::json tiny_phantom(const test::TempDir& dir) {
   return nlohmann::json::parse(read_file(dir / "config.json"));
 }
 
+// `dir`'s config.json run through every stage up to the packed file (quiet); its config.
+Config run_to_pack(const test::TempDir& dir) {
+  Config config = load_config(dir / "config.json");
+  RunOptions options;
+  options.quiet = true;
+  options.to = "pack";
+  run_pipeline(config, options);
+  return config;
+}
+
 }  // namespace
 
 TEST(Pack, MetadataDefectsAndReproducibility) {
@@ -67,11 +77,7 @@ TEST(Pack, MetadataDefectsAndReproducibility) {
     j["work"]["write_ct"] = true;
     write_file_atomic(dir / "config.json", j.dump());
   }
-  Config config = load_config(dir / "config.json");
-  RunOptions options;
-  options.quiet = true;
-  options.to = "pack";
-  run_pipeline(config, options);
+  const Config config = run_to_pack(dir);
 
   auto reader = format::Reader::open(config.output);
   const auto dims = reader.dims();
@@ -129,8 +135,10 @@ TEST(Pack, MetadataDefectsAndReproducibility) {
 
   // Byte-reproducible: a forced repack gives the same bytes.
   std::string before = read_file(config.output);
-  RunOptions again = options;
+  RunOptions again;
+  again.quiet = true;
   again.from = "pack";
+  again.to = "pack";
   again.force = true;
   run_pipeline(config, again);
   EXPECT_TRUE(read_file(config.output) == before);
@@ -227,11 +235,7 @@ TEST(Pack, MissingLettersAndNumbersAreListed) {
     else
       std::filesystem::rename(rgb + from, rgb + to);
   }
-  Config config = load_config(dir / "config.json");
-  RunOptions options;
-  options.quiet = true;
-  options.to = "pack";
-  run_pipeline(config, options);
+  const Config config = run_to_pack(dir);
   auto reader = format::Reader::open(config.output);
   EXPECT_EQ(reader.dims()[2], 20);
   const auto slices = reader.metadata()["extra"]["slices"];
