@@ -17,7 +17,10 @@ when the free space of the work folder would fall under --keep-free-gb (checked 
 generation and run, and every 0.2 s during a run: the run is killed).
 
 Usage: full_length.py --bin DIR --work DIR --results DIR [--slices "128 512 1871"] [--korean N]
-                      [--truth-every K] [--keep-free-gb GB] [--keep-stacks] [--no-cold]
+                      [--female N] [--truth-every K] [--keep-free-gb GB] [--keep-stacks] [--no-cold]
+                      [--generator BIN] [--generate-only]
+The female's shape (--female N): the male phantom's body over N colour slices with a CT slice at
+every third (`--ct-every 3`, as the VH female's 0.33 mm colour over its 1 mm CT).
 Writes RESULTS/full_length.json (and the logs beside it); report: full_length_report.py."""
 import argparse
 import hashlib
@@ -217,7 +220,7 @@ def truth_every(args, slices):
 
 
 def generator_command(args, name, preset, slices, extra):
-    return [os.path.join(args.bin, "vispack-phantom"), "--out", os.path.join(args.work, name),
+    return [args.generator or os.path.join(args.bin, "vispack-phantom"), "--out", os.path.join(args.work, name),
             "--preset", preset, "--slices", str(slices), "--rgb-raw", "--truth-every",
             str(truth_every(args, slices)), "--seed", "1", "--threads", "2", "--quiet",
             "--keep-free-gb", str(args.keep_free_gb)] + extra
@@ -339,11 +342,13 @@ def score(args, folder):
     return out
 
 
-def bench_stack(args, name, preset, slices, extra, width, height, out, save):
+def bench_stack(args, name, preset, slices, extra, width, height, out, save, ct_every=1):
     """Generates, runs and scores one stack; its row is in out["stacks"] from the start and saved
     after every run, so a run stopped later keeps what was measured."""
     row = {"name": name, "preset": preset, "slices": slices, "width": width, "height": height,
            "runs": []}
+    if ct_every > 1:
+        row["ct_every"] = ct_every
     out["stacks"].append(row)
     folder = os.path.join(args.work, name)
     modes = [False] if args.no_cold else [True, False]
@@ -352,6 +357,8 @@ def bench_stack(args, name, preset, slices, extra, width, height, out, save):
     try:
         folder, row["generate"] = generate(args, name, preset, slices, extra)
         save()
+        if args.generate_only:
+            return row
         for cold in modes:
             row["runs"].append(run_once(args, name, folder, width * height, slices, cold))
             save()
@@ -361,7 +368,7 @@ def bench_stack(args, name, preset, slices, extra, width, height, out, save):
         row["error"] = str(e)
         log(f"{name}: {e}")
     finally:
-        if not args.keep_stacks:
+        if not args.keep_stacks and not args.generate_only:
             shutil.rmtree(folder, ignore_errors=True)
             log(f"{name}: stack deleted")
     return row
@@ -374,10 +381,17 @@ def main():
     ap.add_argument("--results", required=True)
     ap.add_argument("--slices", default="128 512 1871")
     ap.add_argument("--korean", type=int, default=64, help="slices of the Korean-sized stack (0: none)")
+    ap.add_argument("--female", type=int, default=1500,
+                    help="colour slices of the female-shaped stack, a CT slice at every third (0: none)")
     ap.add_argument("--truth-every", type=int, default=0,
                     help="truth sample step (default: about 30 slices, at most every 64th)")
     ap.add_argument("--keep-free-gb", type=float, default=10)
     ap.add_argument("--keep-stacks", action="store_true")
+    ap.add_argument("--generator", default="",
+                    help="the vispack-phantom binary that makes the stacks (default: BIN's); a stack is "
+                         "reused only if made by the same binary with the same arguments")
+    ap.add_argument("--generate-only", action="store_true",
+                    help="make (or find) the stacks and stop: no runs, the stacks kept")
     ap.add_argument("--no-cold", action="store_true")
     ap.add_argument("--warm-first", action="store_true",
                     help="the warm run first (after reading the inputs once), then the cold one")
@@ -398,13 +412,16 @@ def main():
     # The male's artefacts: four blocks, twelve black slices (fewer on a short test stack).
     def male(n):
         return ["--blocks", "4", "--black-slices", str(min(12, max(1, n // 8)))]
-    plan = [(f"male-{n}", "male", int(n), male(int(n)), 2048, 1216) for n in args.slices.split()]
+    plan = [(f"male-{n}", "male", int(n), male(int(n)), 2048, 1216, 1) for n in args.slices.split()]
+    if args.female:
+        plan.append((f"female-{args.female}", "male", args.female,
+                     male(args.female) + ["--ct-every", "3"], 2048, 1216, 3))
     if args.korean:
         plan.append((f"korean-{args.korean}", "korean", args.korean,
-                     ["--blocks", "4", "--black-slices", "3"], 4368, 2912))
+                     ["--blocks", "4", "--black-slices", "3"], 4368, 2912, 1))
     try:
-        for name, preset, n, extra, w, h in plan:
-            bench_stack(args, name, preset, n, extra, w, h, out, save)
+        for name, preset, n, extra, w, h, ct_every in plan:
+            bench_stack(args, name, preset, n, extra, w, h, out, save, ct_every)
             save()
     except DiskFull as e:
         out["stopped"] = str(e)
