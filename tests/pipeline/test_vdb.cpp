@@ -933,7 +933,7 @@ TEST(VdbConfig, LevelAndBudgetKeys) {
   };
   Config c = load_with(nlohmann::json::object());
   EXPECT_FALSE(c.vdb.level.has_value());
-  EXPECT_EQ(c.vdb.max_memory_mb, 2048);
+  EXPECT_EQ(c.vdb.max_memory_mb, 1024);
   EXPECT_EQ(c.vdb.layout, VdbLayout::kAuto);
   c = load_with({{"level", "auto"}, {"max_memory_mb", 500}, {"layout", "file"}});
   EXPECT_FALSE(c.vdb.level.has_value());

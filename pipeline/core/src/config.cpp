@@ -643,7 +643,7 @@ void parse_vdb_section(Section& top, Config& config) {
     config.vdb.layout = VdbLayout::kFile;
   else if (layout != "auto")
     s.report("layout", cat("\"", layout, "\" is not a layout (\"auto\" or \"file\")"));
-  config.vdb.max_memory_mb = s.integer("max_memory_mb", 2048, 16, std::int64_t(1) << 30);
+  config.vdb.max_memory_mb = s.integer("max_memory_mb", 1024, 16, std::int64_t(1) << 30);
   s.finish();
 }
 

@@ -7,7 +7,7 @@ int main(int argc, char** argv) {
       "Writes the OpenVDB export (config \"vdb_output\") of one pyramid level of the packed file "
       "(config \"output\", written by vispack-pack): FloatGrid ct (HU), Int32Grid labels, "
       "Vec3SGrid rgb (0..1), active where the packed alpha > 0, voxel size = the level's "
-      "spacing. Level: vdb.level, or level 0. Memory: vdb.max_memory_mb (default 2048 MiB) "
+      "spacing. Level: vdb.level, or level 0. Memory: vdb.max_memory_mb (default 1024 MiB) "
       "per file: the level is written as one file when its estimate fits, else (vdb.layout "
       "\"auto\") as parts, consecutive z slabs each within the budget, in <vdb_output "
       "stem>.slices-AAAA-BBBB.vdb files listed in <vdb_output stem>.parts.json (merged, they "

@@ -152,11 +152,12 @@ struct VdbOptions {
   bool enabled = true;
   std::optional<int> level;  // vdb.level: 0 = the packed file's level 0; unset / "auto" = auto
   VdbLayout layout = VdbLayout::kAuto;  // vdb.layout: "auto" (default) or "file"
-  // vdb.max_memory_mb: budget of the export (MiB), per file written. 2048 by default: a fixed
-  // number, so the layout chosen (and the files written) do not depend on the machine; the
-  // export's peak stays near it whatever the stack's length (the NLM male's level 0, ~25 GB of
-  // grids, as about 13 parts).
-  std::int64_t max_memory_mb = 2048;
+  // vdb.max_memory_mb: budget of the export (MiB), per file written. 1024 by default: a fixed
+  // number, so the layout chosen (and the files written) do not depend on the machine, below the
+  // streaming pass's own peak at 2048x1216 (about 1.1 GB), so the export never sets the run's
+  // peak; the export's peak stays near it whatever the stack's length (the NLM male's level 0,
+  // ~25 GB of grids, as about 28 parts).
+  std::int64_t max_memory_mb = 1024;
 };
 
 struct Config {
