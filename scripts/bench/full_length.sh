@@ -9,7 +9,7 @@
 # of two cores and 25 GB of disk at the default lengths (each stack is deleted after its runs); run as root for the cold page cache.
 # Usage: scripts/bench/full_length.sh [--build DIR] [--no-build] [--slices "128 512 1871"]
 #          [--korean N] [--female N] [--work DIR] [--keep-free-gb GB] [--keep-stacks] [--warm-first] [--report]
-#          [--require-clean] [--generator BIN] [--generate-only]
+#          [--require-clean] [--generator BIN] [--generate-only] [--no-cold]
 #   --slices     male stack lengths (default "128 512 1871")
 #   --korean N   slices of the Korean-sized stack (default 64; 0: none)
 #   --female N   colour slices of the female-shaped stack: the male body with a CT slice at every
@@ -25,6 +25,7 @@
 #   --generator BIN  the vispack-phantom that makes the stacks (default: the build's; a copy kept
 #                aside lets stacks made once be reused by the runs of later commits)
 #   --generate-only  make (or find) the stacks and stop: no runs, no report, the stacks kept
+#   --no-cold    the warm run only (no page-cache drop, which needs root)
 # Results: BUILD/bench/full_length/results/full_length.json and the logs beside it.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)
@@ -45,6 +46,7 @@ while [[ $# -gt 0 ]]; do
     --require-clean) require_clean=1 ;;
     --generator) generator=(--generator "$(realpath -m "$2")"); shift ;;
     --generate-only) generate_only=(--generate-only) ;;
+    --no-cold) order+=(--no-cold) ;;
     -h|--help) sed -n '2,25p' "$0"; exit 0 ;;
     *) echo "full_length.sh: unknown option $1" >&2; exit 2 ;;
   esac
