@@ -28,35 +28,70 @@ inline int paeth(int a, int b, int c) {
   return pb <= pc ? b : c;
 }
 
-// Undoes one row's filter in place; `prev` is the previous row, unfiltered (zeros for the
-// first). Returns false for an unknown filter type.
-bool unfilter_row(int filter, unsigned char* cur, const unsigned char* prev, std::size_t size,
-                  std::size_t bpp) {
+// Undoes one row's filter: `in` the filtered bytes, `out` the row (not overlapping `in`),
+// `prev` the previous row unfiltered (zeros for the first); B bytes a pixel. The left
+// neighbours are kept in locals (one chain per byte of the pixel): the byte just written is not
+// read back from memory. Returns false for an unknown filter type.
+template <std::size_t B>
+bool unfilter_row(int filter, const unsigned char* in, unsigned char* out,
+                  const unsigned char* prev, std::size_t size) {
+  unsigned char left[B], up_left[B];
   switch (filter) {
     case 0:
+      std::memcpy(out, in, size);
       return true;
     case 1:
-      for (std::size_t i = bpp; i < size; ++i)
-        cur[i] = static_cast<unsigned char>(cur[i] + cur[i - bpp]);
+      for (std::size_t c = 0; c < B; ++c)
+        left[c] = out[c] = in[c];
+      for (std::size_t i = B; i < size; i += B)
+        for (std::size_t c = 0; c < B; ++c)
+          left[c] = out[i + c] = static_cast<unsigned char>(in[i + c] + left[c]);
       return true;
     case 2:
       for (std::size_t i = 0; i < size; ++i)
-        cur[i] = static_cast<unsigned char>(cur[i] + prev[i]);
+        out[i] = static_cast<unsigned char>(in[i] + prev[i]);
       return true;
     case 3:
-      for (std::size_t i = 0; i < bpp; ++i)
-        cur[i] = static_cast<unsigned char>(cur[i] + (prev[i] >> 1));
-      for (std::size_t i = bpp; i < size; ++i)
-        cur[i] = static_cast<unsigned char>(cur[i] + ((cur[i - bpp] + prev[i]) >> 1));
+      for (std::size_t c = 0; c < B; ++c)
+        left[c] = out[c] = static_cast<unsigned char>(in[c] + (prev[c] >> 1));
+      for (std::size_t i = B; i < size; i += B)
+        for (std::size_t c = 0; c < B; ++c)
+          left[c] = out[i + c] =
+              static_cast<unsigned char>(in[i + c] + ((left[c] + prev[i + c]) >> 1));
       return true;
     case 4:
-      for (std::size_t i = 0; i < bpp; ++i)
-        cur[i] = static_cast<unsigned char>(cur[i] + prev[i]);  // paeth(0, b, 0) = b
-      for (std::size_t i = bpp; i < size; ++i)
-        cur[i] = static_cast<unsigned char>(cur[i] + paeth(cur[i - bpp], prev[i], prev[i - bpp]));
+      for (std::size_t c = 0; c < B; ++c) {  // paeth(0, b, 0) = b
+        left[c] = out[c] = static_cast<unsigned char>(in[c] + prev[c]);
+        up_left[c] = prev[c];
+      }
+      for (std::size_t i = B; i < size; i += B)
+        for (std::size_t c = 0; c < B; ++c) {
+          const unsigned char up = prev[i + c];
+          left[c] = out[i + c] =
+              static_cast<unsigned char>(in[i + c] + paeth(left[c], up, up_left[c]));
+          up_left[c] = up;
+        }
       return true;
     default:
       return false;
+  }
+}
+
+bool unfilter_row(int filter, const unsigned char* in, unsigned char* out,
+                  const unsigned char* prev, std::size_t size, std::size_t bpp) {
+  switch (bpp) {
+    case 1:
+      return unfilter_row<1>(filter, in, out, prev, size);
+    case 2:
+      return unfilter_row<2>(filter, in, out, prev, size);
+    case 3:
+      return unfilter_row<3>(filter, in, out, prev, size);
+    case 4:
+      return unfilter_row<4>(filter, in, out, prev, size);
+    case 6:
+      return unfilter_row<6>(filter, in, out, prev, size);
+    default:
+      return unfilter_row<8>(filter, in, out, prev, size);
   }
 }
 
@@ -73,6 +108,7 @@ std::optional<cv::Mat> decode_plain_png(std::string_view bytes, int max_edge,
   std::uint32_t width = 0, height = 0;
   int depth = 0, colour = 0;
   std::vector<unsigned char> stream;
+  stream.reserve(size);
   bool header = false, idat_done = false, end = false;
   while (!end) {
     if (size - at < 12) return std::nullopt;
@@ -135,34 +171,32 @@ std::optional<cv::Mat> decode_plain_png(std::string_view bytes, int max_edge,
   if (std::uint64_t(width) * height * std::uint64_t(channels) * 4 > max_bytes) return std::nullopt;
   // The filtered rows, each after its filter byte, inflated at once (the exact length, the
   // stream's Adler-32 checked by libdeflate).
-  std::vector<unsigned char> raw(std::size_t(height) * (row + 1));
+  const std::size_t raw_size = std::size_t(height) * (row + 1);
+  const std::unique_ptr<unsigned char[]> raw(new unsigned char[raw_size]);  // every byte written
   const std::unique_ptr<libdeflate_decompressor, DecompressorFree> inflater(
       libdeflate_alloc_decompressor());
-  if (!inflater ||
-      libdeflate_zlib_decompress(inflater.get(), stream.data(), stream.size(), raw.data(),
-                                 raw.size(), nullptr) != LIBDEFLATE_SUCCESS)
+  if (!inflater || libdeflate_zlib_decompress(inflater.get(), stream.data(), stream.size(),
+                                              raw.get(), raw_size, nullptr) != LIBDEFLATE_SUCCESS)
     return std::nullopt;
-  const std::vector<unsigned char> zeros(row, 0);
-  const unsigned char* prev = zeros.data();
-  for (std::size_t y = 0; y < height; ++y) {
-    unsigned char* cur = raw.data() + y * (row + 1);
-    if (!unfilter_row(cur[0], cur + 1, prev, row, bpp)) return std::nullopt;
-    prev = cur + 1;
-  }
-  // Colour (or grey) kept, alpha dropped; 16-bit samples from big-endian.
+  // Each row unfiltered into the image itself (8 bits, no alpha) or into one of two scratch
+  // rows, then converted: colour (or grey) kept, alpha dropped; 16-bit samples from big-endian.
   const int kept = channels >= 3 ? 3 : 1;
   cv::Mat image(int(height), int(width), CV_MAKETYPE(depth == 8 ? CV_8U : CV_16U, kept));
+  const bool direct = depth == 8 && kept == channels;
+  std::vector<unsigned char> scratch(direct ? row : 3 * row, 0);  // zeros, then two rows
+  const unsigned char* prev = scratch.data();
   for (std::size_t y = 0; y < height; ++y) {
-    const unsigned char* src = raw.data() + y * (row + 1) + 1;
+    const unsigned char* in = raw.get() + y * (row + 1);
+    unsigned char* src =
+        direct ? image.ptr<unsigned char>(int(y)) : scratch.data() + row * (1 + y % 2);
+    if (!unfilter_row(in[0], in + 1, src, prev, row, bpp)) return std::nullopt;
+    prev = src;
+    if (direct) continue;
     if (depth == 8) {
       unsigned char* dst = image.ptr<unsigned char>(int(y));
-      if (kept == channels) {
-        std::memcpy(dst, src, row);
-      } else {
-        for (std::size_t x = 0; x < width; ++x)
-          for (int c = 0; c < kept; ++c)
-            dst[x * kept + c] = src[x * channels + c];
-      }
+      for (std::size_t x = 0; x < width; ++x)
+        for (int c = 0; c < kept; ++c)
+          dst[x * kept + c] = src[x * channels + c];
     } else {
       std::uint16_t* dst = image.ptr<std::uint16_t>(int(y));
       for (std::size_t x = 0; x < width; ++x)
