@@ -9,7 +9,7 @@ packages=(
   build-essential cmake ninja-build pkg-config git clang libclang-rt-14-dev clang-format
   # libraries the code links
   libopencv-dev libopenimageio-dev libopenvdb-dev libboost-iostreams-dev libtbb-dev
-  libzstd-dev nlohmann-json3-dev libxxhash-dev libglfw3-dev libepoxy-dev libegl-dev libgl-dev
+  libzstd-dev nlohmann-json3-dev libxxhash-dev libdeflate-dev libglfw3-dev libepoxy-dev libegl-dev libgl-dev
   libimgui-dev
   # tests: GoogleTest, Google Benchmark, headless GL, reference tools
   libgtest-dev libgmock-dev libbenchmark-dev xvfb xauth libgl1-mesa-dri libegl-mesa0

@@ -321,3 +321,53 @@ TEST(Ecc, StepStopEndsAtTheFirstUpdateSmallerThanTheMinimumStep) {
   cv::Matx23d w = start;
   EXPECT_THROW(vp::ecc_euclidean(tmpl, input, w, bad), vispack::Error);
 }
+
+// The give-up test (EccOptions::give_up): asked after every update with the correlation measured
+// before it (the value a stop there returns) and the update's number; one that never fires leaves
+// every step as without it; the first true ends the refinement as a failure, `warp` at that
+// update.
+TEST(Ecc, GiveUpSeesEveryUpdatesCorrelationAndEndsAsAFailure) {
+  const MovedCase mc(13, 1.0, {3.0, 2.0});
+  const cv::Mat &input = mc.input, &tmpl = mc.tmpl;
+  vp::EccOptions o;
+  o.iterations = 12;
+  o.eps = 1e-12;
+  std::vector<cv::Matx23d> path;
+  o.diverged = [&](const cv::Matx23d& w) {
+    path.push_back(w);
+    return false;
+  };
+  cv::Matx23d free_warp = mc.start;
+  const std::optional<double> free_rho = vp::ecc_euclidean(tmpl, input, free_warp, o);
+  ASSERT_TRUE(free_rho.has_value());
+  ASSERT_GE(path.size(), 4u);
+
+  // Never fires: the same result, bit for bit; updates numbered 1, 2, ...; the last correlation
+  // seen is the one returned.
+  std::vector<double> seen;
+  vp::EccOptions watch = o;
+  watch.diverged = {};
+  watch.give_up = [&](double rho, int update) {
+    EXPECT_EQ(update, int(seen.size()) + 1);
+    seen.push_back(rho);
+    return false;
+  };
+  cv::Matx23d watched = mc.start;
+  const std::optional<double> watched_rho = vp::ecc_euclidean(tmpl, input, watched, watch);
+  ASSERT_TRUE(watched_rho.has_value());
+  EXPECT_EQ(*watched_rho, *free_rho);
+  EXPECT_EQ(cv::norm(cv::Mat(watched), cv::Mat(free_warp), cv::NORM_INF), 0.0);
+  ASSERT_EQ(seen.size(), path.size());
+  EXPECT_EQ(seen.back(), *free_rho);
+
+  // Giving up at the third update: a failure, the warp at that update.
+  vp::EccOptions quit = o;
+  quit.diverged = {};
+  quit.give_up = [&](double rho, int update) {
+    EXPECT_EQ(rho, seen[std::size_t(update - 1)]);
+    return update >= 3;
+  };
+  cv::Matx23d quit_warp = mc.start;
+  EXPECT_FALSE(vp::ecc_euclidean(tmpl, input, quit_warp, quit).has_value());
+  EXPECT_EQ(cv::norm(cv::Mat(quit_warp), cv::Mat(path[2]), cv::NORM_INF), 0.0);
+}

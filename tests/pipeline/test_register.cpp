@@ -218,6 +218,83 @@ TEST(Register, DissimilarPairThatKeepsCreepingIsNotMeasured) {
   EXPECT_NEAR(converging.relative.dy_px, -4.0, 0.3);
 }
 
+// A dissimilar pair whose middle pass creeps (a correlation under 0.9, still moving at its 10th
+// update) is not followed further there: the fine pass starts from that 10th iterate and has 10
+// updates (register/pair.cpp refine_fine; docs/BENCHMARKS.md "Register stage: CPU per slice").
+// The texture grown 2 %: its middle pass alone goes on past its 10th update.
+TEST(Register, DissimilarPairsMiddlePassIsNotFollowedPastItsTenthUpdate) {
+  const cv::Size size(2048, 1216);  // the real size: the fine pass has a middle level first
+  cv::Mat base(size, CV_32F);
+  cv::RNG(5).fill(base, cv::RNG::NORMAL, 0.0, 1.0);
+  cv::GaussianBlur(base, base, cv::Size(0, 0), 8.0);
+  cv::normalize(base, base, 20, 235, cv::NORM_MINMAX);
+  cv::Mat grown;
+  cv::Mat zoom = cv::getRotationMatrix2D(cv::Point2f(600.f, 400.f), 0.0, 1.02);
+  zoom.at<double>(0, 2) += 6.0;
+  zoom.at<double>(1, 2) -= 4.0;
+  cv::warpAffine(base, grown, zoom, size, cv::INTER_CUBIC, cv::BORDER_REFLECT);
+  auto rgb = [](const cv::Mat& f) {
+    cv::Mat g, out;
+    f.convertTo(g, CV_8U);
+    cv::cvtColor(g, out, cv::COLOR_GRAY2RGB);
+    return out;
+  };
+  vp::RegisterOptions options;  // phase+ecc, ecc_scale 0.5, 50 iterations
+  const vp::RegisterFrame a = vp::prepare_frame(rgb(base), options);
+  const vp::RegisterFrame b = vp::prepare_frame(rgb(grown), options);
+  ASSERT_FALSE(a.middle.empty());
+  const cv::Point2d centre = vp::image_centre(size);
+  const vp::Rigid start{0.0, 0.0, 0.0};
+
+  // The pair's passes by hand (the options refine_fine gives them): the middle pass from the
+  // start, every update's correlation and iterate recorded.
+  auto pass = [&](const cv::Mat& from, const cv::Mat& to, double scale, cv::Matx23d& full,
+                  int iterations, std::vector<double>& rhos, std::vector<cv::Matx23d>& path) {
+    vp::EccOptions o;
+    o.iterations = iterations;
+    o.eps = 1e-5;
+    o.min_step_px = 0.02 * scale;
+    o.diverged = [&](const cv::Matx23d& w) {
+      path.push_back(vp::unscale_affine(w, scale));
+      return false;
+    };
+    o.give_up = [&](double rho, int) {
+      rhos.push_back(rho);
+      return false;
+    };
+    cv::Matx23d w = vp::scale_affine(full, scale);
+    const std::optional<double> rho = vp::ecc_euclidean(from, to, w, o);
+    full = vp::unscale_affine(w, scale);
+    return rho;
+  };
+  std::vector<double> middle_rhos;
+  std::vector<cv::Matx23d> middle_path;
+  cv::Matx23d m = vp::rigid_matrix(start, centre);
+  ASSERT_TRUE(
+      pass(a.middle, b.middle, a.middle_scale, m, options.ecc_iterations, middle_rhos, middle_path)
+          .has_value());
+  ASSERT_GT(middle_path.size(), 10u);  // the premise: it creeps on
+  for (std::size_t i = 9; i < middle_rhos.size(); ++i)
+    ASSERT_LT(middle_rhos[i], 0.9) << i;
+  // The fine pass from its 10th iterate, 10 updates, converging before the last (else the pair
+  // would be a failure and go to the full search).
+  std::vector<double> fine_rhos;
+  std::vector<cv::Matx23d> fine_path;
+  cv::Matx23d fine = middle_path[9];
+  const std::optional<double> fine_rho =
+      pass(a.fine, b.fine, a.fine_scale, fine, 10, fine_rhos, fine_path);
+  ASSERT_TRUE(fine_rho.has_value());
+  ASSERT_LT(fine_path.size(), 10u);
+  const vp::Rigid by_hand = vp::rigid_from_matrix(fine, centre);
+
+  const vp::PairEstimate est = vp::estimate_pair(a, b, options, &start);
+  EXPECT_TRUE(est.ecc_ok);
+  EXPECT_NEAR(est.relative.dx_px, by_hand.dx_px, 1e-9);
+  EXPECT_NEAR(est.relative.dy_px, by_hand.dy_px, 1e-9);
+  EXPECT_NEAR(est.relative.rotation_deg, by_hand.rotation_deg, 1e-9);
+  EXPECT_NEAR(est.quality, *fine_rho, 1e-12);
+}
+
 TEST(Register, BrightnessChangeDoesNotMoveTheEstimate) {
   cv::Mat a = textured_slice({256, 192}, 3);
   cv::Mat b = observe(a, {0.5, 1.5, -0.5});

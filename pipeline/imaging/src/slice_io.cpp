@@ -11,12 +11,14 @@
 #include <initializer_list>
 #include <memory>
 #include <system_error>
+#include <utility>
 #include <vector>
 
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
 #include "vispack/common/image_io.h"
 #include "vispack/pipeline/imaging/genesis.h"
+#include "vispack/pipeline/imaging/png_decode.h"
 
 namespace vispack::pipeline {
 namespace {
@@ -389,7 +391,15 @@ cv::Mat read_slice(const std::string& path, const std::optional<RawLayout>& raw)
   if (size == 0) throw InputError(cat(path, ": slice file is empty (0 bytes)"));
   if (raw) return read_raw(path, *raw, size);
   const SliceFormat format = sniff_format(path);
-  if (format.is("png")) check_png_complete(path, size);
+  if (format.is("png")) {
+    check_png_complete(path, size);
+    // Plain PNGs (colour and CT slices) by libdeflate; the rest, and any file it declines as
+    // not well formed, through OpenImageIO (png_decode.h).
+    if (size <= kMaxImageBytes) {
+      if (auto image = decode_plain_png(read_file(path), kMaxImageEdge, kMaxImageBytes))
+        return std::move(*image);
+    }
+  }
   if (format.is("bmp")) check_bmp_header(path);
   return guard_decoder(path, [&] { return read_oiio_unguarded(path, format); });
 }

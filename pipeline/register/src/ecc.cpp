@@ -358,6 +358,7 @@ std::optional<double> ecc_euclidean(const cv::Mat& tmpl, const cv::Mat& input, c
     m(0, 1) = -m(1, 0);
     warp = m;
     if (options.diverged && options.diverged(m)) return std::nullopt;
+    if (options.give_up && options.give_up(rho, it)) return std::nullopt;
     if (std::hypot(delta[1], delta[2]) + std::abs(delta[0]) * diagonal < options.min_step_px)
       break;  // converged: this update moved no pixel by min_step_px
   }

@@ -6,6 +6,7 @@
 #include <functional>
 #include <map>
 #include <optional>
+#include <utility>
 
 #include <opencv2/imgproc.hpp>
 
@@ -38,12 +39,15 @@ constexpr double kDissimilarRho = 0.9;
 constexpr int kDissimilarFineIterations = 10;
 
 // ECC at one level; `m` (full-resolution j→k matrix) is updated in place on success. Returns
-// rho, or nullopt where ECC fails (m unchanged). `too_far` (optional) is given each iterate as a
-// full-resolution matrix; true fails the refinement at once (EccOptions::diverged).
+// rho, or nullopt where ECC fails (m unchanged; `last`, when given, then holds the last iterate
+// as a full-resolution matrix). `too_far` (optional) is given each iterate as a full-resolution
+// matrix; true fails the refinement at once (EccOptions::diverged); `give_up`: EccOptions::give_up.
 std::optional<double> ecc_level(const cv::Mat& from, const cv::Mat& to, double scale,
                                 cv::Matx23d& m, int iterations, double eps,
                                 const std::function<bool(const cv::Matx23d&)>& too_far = {},
-                                double min_step_full_px = 0.0) {
+                                double min_step_full_px = 0.0,
+                                std::function<bool(double, int)> give_up = {},
+                                cv::Matx23d* last = nullptr) {
   cv::Matx23d ms = scale_affine(m, scale);
   EccOptions options;
   options.iterations = iterations;
@@ -52,8 +56,10 @@ std::optional<double> ecc_level(const cv::Mat& from, const cv::Mat& to, double s
   options.blur_size = 1;  // the frames are pre-blurred (prepare_frame)
   if (too_far)
     options.diverged = [&](const cv::Matx23d& w) { return too_far(unscale_affine(w, scale)); };
+  options.give_up = std::move(give_up);
   const std::optional<double> rho = ecc_euclidean(from, to, ms, options);
   if (rho) m = unscale_affine(ms, scale);
+  if (last) *last = unscale_affine(ms, scale);
   return rho;
 }
 
@@ -76,16 +82,26 @@ bool refine_fine(const RegisterFrame& from, const RegisterFrame& to, const Regis
     return travel(rigid_from_matrix(full, centre)) >= kEccRunawayFactor * reach;
   };
   // A first pass at the middle level (a quarter of the pixels): the fine pass then starts
-  // where the middle one ended, a few fine iterations from its own optimum.
+  // where the middle one ended, a few fine iterations from its own optimum. A pair that shows
+  // itself dissimilar there (a correlation under kDissimilarRho), or whose middle pass fails,
+  // gets the capped fine pass; a dissimilar middle pass still moving at its
+  // kDissimilarFineIterations-th update is not followed further: the capped fine pass starts from
+  // that iterate (docs/BENCHMARKS.md "Register stage: CPU per slice").
   int fine_iterations = std::max(1, options.ecc_iterations);
   bool capped = false;
   if (!from.middle.empty() && from.middle.size() == to.middle.size()) {
-    cv::Matx23d mm = m;
+    cv::Matx23d mm = m, last = m;
+    bool crept = false;
+    auto creeping = [&](double rho, int update) {
+      return crept = rho < kDissimilarRho && update >= kDissimilarFineIterations;
+    };
     const std::optional<double> rho_middle =
         ecc_level(from.middle, to.middle, from.middle_scale, mm, fine_iterations, kFineEps, too_far,
-                  kFineStepFullPx);
+                  kFineStepFullPx, creeping, &last);
     if (rho_middle) m = mm;
-    if (rho_middle && *rho_middle < kDissimilarRho && fine_iterations > kDissimilarFineIterations)
+    if (crept) m = last;
+    if ((!rho_middle || *rho_middle < kDissimilarRho) &&
+        fine_iterations > kDissimilarFineIterations)
       fine_iterations = kDissimilarFineIterations, capped = true;
   }
   // A capped pass that is still moving at its last update has not converged.

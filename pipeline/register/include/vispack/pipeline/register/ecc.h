@@ -38,6 +38,12 @@ struct EccOptions {
   // whose anatomy differs, ECC can creep tens of pixels a few tenths at a time until the limit)
   // instead of paying for the remaining iterations. Must be thread-safe if shared.
   std::function<bool(const cv::Matx23d&)> diverged;
+  // Optional (not in OpenCV): called after each update (after `diverged`) with the correlation
+  // measured before that update (what a stop there would return) and the update's number (1, 2,
+  // ...); returning true ends the refinement as a failure (nullopt, `warp` holding that update).
+  // A caller that stops following a pair whose correlation stays low while its iterate keeps
+  // moving says so here (register/pair.cpp). Must be thread-safe if shared.
+  std::function<bool(double rho, int update)> give_up;
 };
 
 // How much farther than the caller's own rejection limit an iterate must lie for `diverged` to end
