@@ -20,7 +20,7 @@ if [[ ! -x $build/bin/fuzz_format_reader ]]; then
     -DVISPACK_SANITIZE=ON -DVISPACK_FUZZ=ON -DVISPACK_BUILD_VIEWER=OFF -DVISPACK_BUILD_BENCH=OFF
 fi
 if [[ ${#targets[@]} -eq 0 ]]; then
-  targets=(fuzz_format_reader fuzz_config fuzz_raw_slice)
+  targets=(fuzz_format_reader fuzz_config fuzz_raw_slice fuzz_png_decode)
 fi
 status=0
 for t in "${targets[@]}"; do

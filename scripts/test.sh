@@ -131,7 +131,7 @@ fi
 
 if [[ $fuzz == 1 && $sanitize == 1 && -x scripts/fuzz.sh ]]; then
   stamp "Short fuzz runs"
-  scripts/fuzz.sh --seconds "${VISPACK_FUZZ_SECONDS:-30}" --build "$root/build-sanitize" || failed=1
+  scripts/fuzz.sh --seconds "${VISPACK_FUZZ_SECONDS:-20}" --build "$root/build-sanitize" || failed=1
 fi
 
 if [[ $bench == 1 && -x scripts/bench.sh ]]; then
