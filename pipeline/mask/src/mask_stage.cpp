@@ -125,7 +125,8 @@ cv::Mat MaskStageJob::compute(int k, const cv::Mat& rgb, const CtSlice& ct, cv::
           .count();
   write_work_image(outs[0], m.mask);
   write_work_image(outs[1],
-                   fit_overlay(draw_mask_overlay(rgb, m.mask), config_.work.overlay_max_px));
+                   fit_overlay(draw_mask_overlay(rgb, m.mask), config_.work.overlay_max_px),
+                   WorkImageContent::kPicture);
   if (write_ct || (ct16 && config_.ct)) {
     cv::Mat resampled = resampled_ct16(config_, inputs_, k, &ct);
     if (write_ct) write_work_image(outs[2], resampled);
