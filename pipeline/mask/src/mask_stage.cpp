@@ -206,6 +206,8 @@ StageResult run_mask_stage(const Config& config, const StageOptions& options) {
   // --threads 1 too, so that one thread means one core, as a SLURM task of one CPU expects).
   ScopedOpenCvThreads opencv_threads(1);
   const SliceRange range = run.range();
+  // The slices in flight (one per thread) and the CT slices beside them.
+  CtHuCache ct_cache(std::size_t(3 * run.threads() + 4));
   parallel_for(range.size(), run.threads(), [&](std::int64_t i) {
     const int k = range.first + int(i);
     if (job.up_to_date(k)) {
@@ -213,7 +215,7 @@ StageResult run_mask_stage(const Config& config, const StageOptions& options) {
       return;
     }
     const cv::Mat rgb = registered_colour(config, inputs, k);
-    job.compute(k, rgb, read_ct_slice(config, inputs, k, /*for_mask=*/true));
+    job.compute(k, rgb, read_ct_slice(config, inputs, k, /*for_mask=*/true, &ct_cache));
   });
   return job.finish();
 }
