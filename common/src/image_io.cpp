@@ -73,9 +73,11 @@ void write_image_file(const std::string& path, const ImageView& image,
   }
   if (format == "png") {
     spec.attribute("png:compressionLevel", options.png_level);
-    if (options.png_fast) {
-      spec.attribute("png:filter", 32);      // PNG_FILTER_UP
-      spec.attribute("compression", "rle");  // Z_RLE
+    if (options.png_encoding != PngEncoding::kAdaptive) {
+      spec.attribute("png:filter", 32);  // PNG_FILTER_UP
+      // Z_RLE or Z_HUFFMAN_ONLY
+      spec.attribute("compression",
+                     options.png_encoding == PngEncoding::kUpRuns ? "rle" : "huffman");
     }
   } else if (format == "tiff") {
     spec.attribute("compression", "zip");

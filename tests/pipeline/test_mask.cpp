@@ -254,6 +254,43 @@ TEST(MaskStage, CtSliceCarriesItsNeighboursAlongZ) {
   EXPECT_TRUE(vp::read_ct_slice(config, inputs, 4).z.tissue.empty());  // not for the mask
 }
 
+// Read through a CtHuCache, in stack order, every slice's CT (the HU, the shape and envelope
+// between CT slices, the neighbours along z) is what it is without the cache, and each CT file is
+// decoded once (each read about three times). The tiny phantom, 10 colour slices, a CT
+// slice at every colour slice and at every third.
+TEST(MaskStage, CtCacheGivesTheSameSlicesAndDecodesEachCtSliceOnce) {
+  auto equal = [](const cv::Mat& a, const cv::Mat& b) {
+    return a.size() == b.size() && a.type() == b.type() &&
+           (a.empty() || cv::norm(a, b, cv::NORM_INF) == 0);
+  };
+  for (int ct_every : {1, 3}) {
+    TempDir dir("vispack-mask-ct-cache");
+    vph::PhantomOptions po;
+    po.preset = "tiny", po.slices = 10, po.ct_every = ct_every, po.quiet = true;  // seed 1
+    vph::make_phantom(dir.path(), po);
+    const vp::Config config = vp::load_config(dir / "config.json");
+    vp::run_register_stage(config, vispack::test::quiet_stage_options());
+    const vp::StackInputs inputs = vp::read_stack_inputs(config);
+    vp::CtHuCache cache(4);
+    for (int k = 0; k < 10; ++k) {
+      const vp::CtSlice plain = vp::read_ct_slice(config, inputs, k, true);
+      const vp::CtSlice cached = vp::read_ct_slice(config, inputs, k, true, &cache);
+      EXPECT_TRUE(equal(plain.hu, cached.hu)) << "slice " << k << ", CT every " << ct_every;
+      EXPECT_TRUE(equal(plain.shape_hu, cached.shape_hu)) << "slice " << k;
+      EXPECT_TRUE(equal(plain.envelope_hu, cached.envelope_hu)) << "slice " << k;
+      EXPECT_EQ(plain.body_ends, cached.body_ends) << "slice " << k;
+      ASSERT_EQ(plain.z.tissue.size(), cached.z.tissue.size()) << "slice " << k;
+      for (std::size_t i = 0; i < plain.z.tissue.size(); ++i)
+        EXPECT_TRUE(equal(plain.z.tissue[i], cached.z.tissue[i])) << "slice " << k;
+      EXPECT_TRUE(equal(vp::resampled_ct16(config, inputs, k),
+                        vp::resampled_ct16(config, inputs, k, nullptr, &cache)))
+          << "slice " << k;
+    }
+    EXPECT_EQ(cache.decoded(), inputs.ct.size()) << "CT every " << ct_every;
+    EXPECT_GT(cache.hits(), 2 * inputs.ct.size()) << "CT every " << ct_every;
+  }
+}
+
 // Colour-only: two legs of nearly equal size are both body; a green fiducial tube the size of a
 // leg's bone is not tissue-coloured; a blue-grey blob (gel seen through ice) neither.
 TEST(Mask, ColourMaskKeepsBothLegs) {

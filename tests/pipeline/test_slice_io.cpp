@@ -157,6 +157,30 @@ TEST(SliceIo, WorkImagesAreLosslessAndSmallForMasks) {
   EXPECT_LT(work, 0.7 * plain) << work << " bytes against " << plain;
 }
 
+// Work-folder pictures (WorkImageContent::kPicture: Up filter, Huffman-only zlib) are lossless
+// and deterministic, and really Huffman-only: with no search for repeats every filtered byte
+// costs at least one bit, so a flat mask takes at least width x height / 8 bytes that way, where
+// the run-length encoding of kRegions takes a few hundred.
+TEST(SliceIo, WorkPicturesAreLosslessAndHuffmanCoded) {
+  TempDir dir;
+  for (int type : {CV_8UC1, CV_8UC3, CV_16UC3}) {
+    const cv::Mat image = make_image(53, 31, type);
+    vp::write_work_image(dir / "p.png", image, vp::WorkImageContent::kPicture);
+    EXPECT_TRUE(equal(vp::read_slice(dir / "p.png"), image)) << "type " << type;
+    vp::write_work_image(dir / "p2.png", image, vp::WorkImageContent::kPicture);
+    EXPECT_EQ(read_bytes(dir / "p.png"), read_bytes(dir / "p2.png")) << "type " << type;
+  }
+  cv::Mat mask(384, 512, CV_8UC1, cv::Scalar(0));
+  cv::ellipse(mask, {256, 192}, {200, 150}, 10.0, 0.0, 360.0, cv::Scalar(255), cv::FILLED);
+  vp::write_work_image(dir / "mask_picture.png", mask, vp::WorkImageContent::kPicture);
+  vp::write_work_image(dir / "mask_regions.png", mask, vp::WorkImageContent::kRegions);
+  EXPECT_TRUE(equal(vp::read_slice(dir / "mask_picture.png"), mask));
+  const double picture = double(read_bytes(dir / "mask_picture.png").size());
+  const double regions = double(read_bytes(dir / "mask_regions.png").size());
+  EXPECT_GE(picture, mask.total() / 8.0) << picture << " bytes (Huffman-only)";
+  EXPECT_LT(regions, 0.1 * picture) << regions << " bytes (run-length) against " << picture;
+}
+
 TEST(SliceIo, JpegIsCloseAndQualityMatters) {
   TempDir dir;
   // A smooth image: JPEG at quality 95 stays within a few levels (8x8 DCT quantisation).

@@ -65,16 +65,54 @@ cv::Mat read_ct_hu(const CtSource& ct, const std::string& path) {
   return hu;
 }
 
+cv::Mat CtHuCache::read(const CtSource& ct, const std::string& path) {
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    for (auto it = entries_.begin(); it != entries_.end(); ++it) {
+      if (it->first != path) continue;
+      entries_.splice(entries_.begin(), entries_, it);
+      ++hits_;
+      return it->second.clone();
+    }
+  }
+  cv::Mat hu = read_ct_hu(ct, path);
+  std::lock_guard<std::mutex> lock(mutex_);
+  ++decoded_;
+  if (capacity_ == 0) return hu;
+  entries_.emplace_front(path, hu.clone());
+  while (entries_.size() > capacity_)
+    entries_.pop_back();
+  return hu;
+}
+
+std::uint64_t CtHuCache::decoded() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return decoded_;
+}
+
+std::uint64_t CtHuCache::hits() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return hits_;
+}
+
+namespace {
+
+cv::Mat read_hu(const CtSource& ct, const std::string& path, CtHuCache* cache) {
+  return cache ? cache->read(ct, path) : read_ct_hu(ct, path);
+}
+
+}  // namespace
+
 cv::Mat ct_hu_at_colour_slice(const Config& config, const std::vector<SliceFile>& ct_files,
-                              int colour_slot) {
+                              int colour_slot, CtHuCache* cache) {
   if (!config.ct) return {};
   const CtAtZ at = ct_at_colour_slice(config, int(ct_files.size()), colour_slot);
   if (!at.inside()) return {};
   const std::string& below = ct_files[std::size_t(at.below)].path;
-  cv::Mat hu = read_ct_hu(*config.ct, below);
+  cv::Mat hu = read_hu(*config.ct, below, cache);
   if (at.exact()) return hu;  // on a CT slice: that slice, as read (the 1:1 case)
   const std::string& above = ct_files[std::size_t(at.above)].path;
-  const cv::Mat hu_above = read_ct_hu(*config.ct, above);
+  const cv::Mat hu_above = read_hu(*config.ct, above, cache);
   if (hu_above.size() != hu.size())
     throw InputError(cat(above, ": CT slice is ", hu_above.cols, "x", hu_above.rows, ", ", below,
                          " is ", hu.cols, "x", hu.rows));
@@ -84,14 +122,15 @@ cv::Mat ct_hu_at_colour_slice(const Config& config, const std::vector<SliceFile>
   return blended;
 }
 
-CtSlice read_ct_slice(const Config& config, const StackInputs& inputs, int index, bool for_mask) {
+CtSlice read_ct_slice(const Config& config, const StackInputs& inputs, int index, bool for_mask,
+                      CtHuCache* cache) {
   CtSlice ct;
   if (!config.ct) return ct;
   const CtAtZ at =
       ct_at_colour_slice(config, int(inputs.ct.size()), inputs.rgb[std::size_t(index)].slot);
   if (!at.inside()) return ct;
   ct.path = inputs.ct[std::size_t(at.nearest())].path;
-  ct.hu = ct_hu_at_colour_slice(config, inputs.ct, inputs.rgb[std::size_t(index)].slot);
+  ct.hu = ct_hu_at_colour_slice(config, inputs.ct, inputs.rgb[std::size_t(index)].slot, cache);
   const double level = mask_edge_level_hu(config.mask.hu_threshold);
   auto neighbour_size = [&](const cv::Mat& hu, const std::string& path) {
     if (hu.size() != ct.hu.size())
@@ -105,8 +144,8 @@ CtSlice read_ct_slice(const Config& config, const StackInputs& inputs, int index
                                   (config.ct->pixel_spacing_mm[0] * config.ct->pixel_spacing_mm[1]);
     const std::string& below_path = inputs.ct[std::size_t(at.below)].path;
     const std::string& above_path = inputs.ct[std::size_t(at.above)].path;
-    const cv::Mat hu_below = read_ct_hu(*config.ct, below_path);
-    const cv::Mat hu_above = read_ct_hu(*config.ct, above_path);
+    const cv::Mat hu_below = read_hu(*config.ct, below_path, cache);
+    const cv::Mat hu_above = read_hu(*config.ct, above_path, cache);
     const cv::Mat below = ct_body_mask(hu_below, level, min_part_ct_px);
     const cv::Mat above = ct_body_mask(hu_above, level, min_part_ct_px);
     const int n_below = cv::countNonZero(below), n_above = cv::countNonZero(above);
@@ -126,7 +165,8 @@ CtSlice read_ct_slice(const Config& config, const StackInputs& inputs, int index
     for (int j : {at.below - 1, at.below + 1}) {
       if (j < 0 || j >= int(inputs.ct.size())) continue;
       const std::string& path = inputs.ct[std::size_t(j)].path;
-      ct.z.tissue.push_back(ct_tissue(neighbour_size(read_ct_hu(*config.ct, path), path), level));
+      ct.z.tissue.push_back(
+          ct_tissue(neighbour_size(read_hu(*config.ct, path, cache), path), level));
     }
     ct.z.needed = 1;
   }
@@ -137,10 +177,10 @@ CtSlice read_ct_slice(const Config& config, const StackInputs& inputs, int index
 }
 
 cv::Mat resampled_ct16(const Config& config, const StackInputs& inputs, int index,
-                       const CtSlice* ct) {
+                       const CtSlice* ct, CtHuCache* cache) {
   CtSlice own;
   if (!ct) {
-    own = read_ct_slice(config, inputs, index);
+    own = read_ct_slice(config, inputs, index, false, cache);
     ct = &own;
   }
   if (ct->hu.empty())

@@ -437,10 +437,11 @@ ImageView view_of(const std::string& path, const cv::Mat& image) {
 
 }  // namespace
 
-void write_work_image(const std::string& path, const cv::Mat& image) {
+void write_work_image(const std::string& path, const cv::Mat& image, WorkImageContent content) {
   ImageWriteOptions options;
   options.png_level = 1;
-  options.png_fast = true;
+  options.png_encoding =
+      content == WorkImageContent::kPicture ? PngEncoding::kUpHuffman : PngEncoding::kUpRuns;
   write_image_file(path, view_of(path, image), options);
 }
 

@@ -125,7 +125,8 @@ cv::Mat MaskStageJob::compute(int k, const cv::Mat& rgb, const CtSlice& ct, cv::
           .count();
   write_work_image(outs[0], m.mask);
   write_work_image(outs[1],
-                   fit_overlay(draw_mask_overlay(rgb, m.mask), config_.work.overlay_max_px));
+                   fit_overlay(draw_mask_overlay(rgb, m.mask), config_.work.overlay_max_px),
+                   WorkImageContent::kPicture);
   if (write_ct || (ct16 && config_.ct)) {
     cv::Mat resampled = resampled_ct16(config_, inputs_, k, &ct);
     if (write_ct) write_work_image(outs[2], resampled);
@@ -205,6 +206,8 @@ StageResult run_mask_stage(const Config& config, const StageOptions& options) {
   // --threads 1 too, so that one thread means one core, as a SLURM task of one CPU expects).
   ScopedOpenCvThreads opencv_threads(1);
   const SliceRange range = run.range();
+  // The slices in flight (one per thread) and the CT slices beside them.
+  CtHuCache ct_cache(std::size_t(3 * run.threads() + 4));
   parallel_for(range.size(), run.threads(), [&](std::int64_t i) {
     const int k = range.first + int(i);
     if (job.up_to_date(k)) {
@@ -212,7 +215,7 @@ StageResult run_mask_stage(const Config& config, const StageOptions& options) {
       return;
     }
     const cv::Mat rgb = registered_colour(config, inputs, k);
-    job.compute(k, rgb, read_ct_slice(config, inputs, k, /*for_mask=*/true));
+    job.compute(k, rgb, read_ct_slice(config, inputs, k, /*for_mask=*/true, &ct_cache));
   });
   return job.finish();
 }

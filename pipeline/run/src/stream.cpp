@@ -89,6 +89,8 @@ std::vector<StageResult> run_stream(const Config& config, const StageOptions& op
   if (config.seg) labels = std::make_unique<LabelsStageJob>(config, options);
   const int threads = mask.run().threads();
   ScopedOpenCvThreads opencv_threads(1);
+  // The slices in flight (2 per thread) and the CT slices beside them.
+  CtHuCache ct_cache(std::size_t(4 * threads + 4));
 
   // What is up to date, decided before anything is written (index i = slice range.first + i).
   const int count = range.size();
@@ -113,11 +115,11 @@ std::vector<StageResult> run_stream(const Config& config, const StageOptions& op
       if (pack) {
         in.rgb = registered_colour(config, inputs, k);
         in.mask = read_checked(mask_path(config, k), CV_8UC1, size);
-        if (config.ct) in.ct = resampled_ct16(config, inputs, k);
+        if (config.ct) in.ct = resampled_ct16(config, inputs, k, nullptr, &ct_cache);
       }
     } else {
       in.rgb = registered_colour(config, inputs, k);
-      const CtSlice ct = read_ct_slice(config, inputs, k, /*for_mask=*/true);
+      const CtSlice ct = read_ct_slice(config, inputs, k, /*for_mask=*/true, &ct_cache);
       in.mask = mask.compute(k, in.rgb, ct, pack && config.ct ? &in.ct : nullptr);
     }
     if (labels) {

@@ -21,15 +21,25 @@ struct ImageView {
   std::size_t row_bytes = 0;  // 0: width * channels * bits / 8
 };
 
+// How a PNG is encoded (fixed settings, so the bytes are deterministic).
+enum class PngEncoding {
+  kAdaptive,  // libpng's adaptive choice among five row filters, zlib's default strategy
+  // One row filter (Up) and zlib's run-length strategy. For masks, label slices and CT copies
+  // (long runs of one value) this encodes ~3x faster than kAdaptive and gives smaller files
+  // (measured by hand at 2048x1216: mask 20 -> 8 kB, label slice 48 -> 22 kB; docs/BENCHMARKS.md
+  // "Work-folder PNGs").
+  kUpRuns,
+  // One row filter (Up) and zlib's Huffman-only strategy: no search for repeats. For pictures of
+  // the colour (mask overlays), where a run-length search finds little: ~15 % less CPU at the
+  // same size (1024x608 overlay: 757 -> 754 kB; docs/BENCHMARKS.md "The streaming pass: overlay
+  // PNGs and CT slices decoded once"). A flat image gains nothing: a byte costs at least a bit.
+  kUpHuffman,
+};
+
 struct ImageWriteOptions {
   int jpeg_quality = 90;  // 1..100, JPEG only
   int png_level = 4;      // zlib level 0..9, PNG only (fixed, so the bytes are deterministic)
-  // PNG only: one row filter (Up) and zlib's run-length strategy instead of libpng's adaptive
-  // choice among five filters with zlib's default strategy. For masks, label slices and
-  // overlays this encodes ~3x faster and gives smaller files (measured by hand at 2048x1216:
-  // mask 20 -> 8 kB, label slice 48 -> 22 kB, overlay 923 -> 769 kB; docs/BENCHMARKS.md
-  // "Work-folder PNGs").
-  bool png_fast = false;
+  PngEncoding png_encoding = PngEncoding::kAdaptive;  // PNG only
 };
 
 // Writes `image` to `path`; the format follows the extension (.png, .tif/.tiff (zip), .jpg/.jpeg,

@@ -1,11 +1,15 @@
 // The one way to read a stack slice's intermediates back (pack, vdb, the one-pass stream): the
 // registered colour and the resampled CT rebuilt from the inputs, the mask and labels read from
 // the work folder (core/work_layout.h names the paths), what lies outside the body cleared.
-// All functions are thread-safe (they only read the config and the file system).
+// All functions are thread-safe (they only read the config and the file system, and a CtHuCache
+// that guards itself).
 #pragma once
 
 #include <cstdint>
+#include <list>
+#include <mutex>
 #include <string>
+#include <utility>
 
 #include <opencv2/core.hpp>
 
@@ -26,13 +30,38 @@ cv::Mat registered_colour(const Config& config, const StackInputs& inputs, int i
 // naming the file when it is not single-channel.
 cv::Mat read_ct_hu(const CtSource& ct, const std::string& path);
 
+// The CT slices in HU (read_ct_hu) decoded last, for the colour slices beside them: on a stack
+// with a CT slice per colour slice, read_ct_slice(for_mask) reads CT slice j for colour slice j
+// and again, for the part rule's continuity along z, for colour slices j - 1 and j + 1 (three
+// decodes of each CT slice; one with this cache when the slices are read in about stack order).
+// Holds the `capacity` files read last (least recently used goes first), keyed by path: one
+// cache serves one run of one config (ct.slope and ct.intercept fixed). read() returns a copy
+// (the caller may change it). Thread-safe: one mutex around the list, the decode outside it (two
+// threads asking for one file at once both decode it).
+class CtHuCache {
+ public:
+  explicit CtHuCache(std::size_t capacity) : capacity_(capacity) {}
+  // read_ct_hu(ct, path), from the cache when it holds `path`. Throws what read_ct_hu throws.
+  cv::Mat read(const CtSource& ct, const std::string& path);
+  // Files decoded (cache misses) and reads answered from the cache, since construction.
+  std::uint64_t decoded() const;
+  std::uint64_t hits() const;
+
+ private:
+  mutable std::mutex mutex_;
+  std::size_t capacity_;
+  std::list<std::pair<std::string, cv::Mat>> entries_;  // most recently used first
+  std::uint64_t decoded_ = 0, hits_ = 0;
+};
+
 // The CT in HU (CV_32F, CT resolution) at the z of colour slot `colour_slot` (slice_z.h:
 // files[k].slot for colour slice k): the one CT slice read as is when the colour slice lies on it
 // (the 1:1 case), else the two CT slices around its z blended linearly in HU; empty outside the
-// CT's z range or without CT. `ct_files` is the CT stack (list_slices(*config.ct)). Throws
+// CT's z range or without CT. `ct_files` is the CT stack (list_slices(*config.ct)); `cache`
+// (optional) keeps decoded CT slices for the next slices (the result is the same). Throws
 // InputError naming a file that is not single-channel or whose size differs from its neighbour's.
 cv::Mat ct_hu_at_colour_slice(const Config& config, const std::vector<SliceFile>& ct_files,
-                              int colour_slot);
+                              int colour_slot, CtHuCache* cache = nullptr);
 
 // The CT at output slice k's z in HU (ct_hu_at_colour_slice) and the map from output pixels to
 // its pixels (imaging/transforms.h output_to_ct with transforms.json's ct_to_rgb, else the config's
@@ -58,15 +87,17 @@ struct CtSlice {
   // (outline.h ZNeighbours): beside CT slice j, j − 1 and j + 1; between two, those two.
   ZNeighbours z;
 };
+// `cache` (optional): as in ct_hu_at_colour_slice (the result is the same).
 CtSlice read_ct_slice(const Config& config, const StackInputs& inputs, int index,
-                      bool for_mask = false);
+                      bool for_mask = false, CtHuCache* cache = nullptr);
 
 // The CT of output slice k on the output grid as work/mask/ct_NNNN.png stores it (CV_16UC1,
 // HU + 32768; mask.h resample_ct, encode_hu16): the one implementation the mask stage writes
 // (work.write_ct) and pack and vdb read. A slice beyond the CT stack is −1024 HU (air)
-// everywhere. `ct` (optional) is the slice already read.
+// everywhere. `ct` (optional) is the slice already read; else it is read (through `cache`, when
+// given).
 cv::Mat resampled_ct16(const Config& config, const StackInputs& inputs, int index,
-                       const CtSlice* ct = nullptr);
+                       const CtSlice* ct = nullptr, CtHuCache* cache = nullptr);
 
 // One output slice's intermediates, as the mask and labels stages wrote them, on the output grid,
 // with what lies outside the body cleared as the config asks (pack.keep_outside_body).

@@ -56,13 +56,23 @@ cv::Size read_slice_size(const std::string& path,
 void write_image(const std::string& path, const cv::Mat& image, int jpeg_quality = 90,
                  int png_level = 4);
 
+// What a work-folder image shows, which picks its PNG encoding (vispack::PngEncoding).
+enum class WorkImageContent {
+  kRegions,  // masks, label slices, resampled CT: long runs of one value (Up + run-length zlib)
+  kPicture,  // pictures of the colour (mask overlays): few runs (Up + Huffman-only zlib)
+};
+
 // Writes a per-slice work-folder image (mask, overlay, label slice, resampled CT, QC picture;
 // not the registered colour copy, which stays at write_image's level 4) encoded for speed: a PNG at
-// zlib level 1 with the Up row filter and zlib's run-length strategy (ImageWriteOptions::png_fast);
-// other extensions as write_image. At 2048x1216 this took the streaming pass (mask + labels + pack)
-// from 0.181 to 0.131 CPU-s per slice, and the mask and label PNGs shrink to less than half
-// (docs/BENCHMARKS.md "Work-folder PNGs"). Deterministic bytes; throws IoError naming the path.
-void write_work_image(const std::string& path, const cv::Mat& image);
+// zlib level 1 with the Up row filter and, by `content`, zlib's run-length strategy
+// (PngEncoding::kUpRuns) or its Huffman-only one (kUpHuffman); other extensions as write_image.
+// At 2048x1216 the run-length choice took the streaming pass (mask + labels + pack) from 0.181 to
+// 0.131 CPU-s per slice, and the mask and label PNGs shrink to less than half (docs/BENCHMARKS.md
+// "Work-folder PNGs"); Huffman-only encodes a mask overlay faster at the same size
+// (docs/BENCHMARKS.md "The streaming pass: overlay PNGs and CT slices decoded once"). Lossless;
+// deterministic bytes; throws IoError naming the path.
+void write_work_image(const std::string& path, const cv::Mat& image,
+                      WorkImageContent content = WorkImageContent::kRegions);
 
 // Writes a header-less raw slice in `layout` (planar or interleaved, 8 or 16 bit, byte order;
 // `header_bytes` zero bytes first), atomically. The image must match layout.width/height/channels
