@@ -17,7 +17,9 @@ The chain, in order (a step runs when the whole step before it has ended):
 Only the stages CONFIG enables (`vispack-run CONFIG --plan`) from --from on are in it. Array
 task i takes stack indices [bounds[i], bounds[i+1]): whole slabs, [E*floor(i*L/N),
 E*floor((i+1)*L/N)) capped at S, when there are at least N level-0 slabs (L = ceil(S/E), E =
-pack_slab_slices); else [floor(i*S/N), floor((i+1)*S/N)). The merge threads default to N x C,
+pack_slab_slices); else [floor(i*S/N), floor((i+1)*S/N)) (so when `--plan` prints
+pack_slab_slices 0: a colour file missing inside the stack makes slabs of output slices hold
+fewer files, docs/ARCHITECTURE.md "Each input at its own z"). The merge threads default to N x C,
 at most the CPUs of the largest node `sinfo` lists (for --partition), at least C.
 
 Every command is `BIN/PROGRAM --config CONFIG ARGS --threads T --quiet` (vispack-run takes

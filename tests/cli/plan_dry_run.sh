@@ -27,6 +27,17 @@ for line in "slices 6" "stages register mask labels pack vdb" "pack_slab_slices 
 done
 [[ ! -e png/work && ! -e png/out ]] || fail "--plan wrote into png/"
 
+# A colour file missing inside the stack: slabs of output slices (slots) hold fewer files, so no
+# fixed count of stack slices makes whole slabs: pack_slab_slices 0 (cluster_plan.py then packs in
+# a step of its own).
+rm -rf gap && cp -R png gap && rm gap/rgb/rgb_0003.png
+out=$("$bin/vispack-run" gap/config.json --plan 2>&1)
+rc=$?
+[[ $rc == 0 ]] || fail "a colour gap: exit $rc: $out"
+for line in "slices 5" "pack_slab_slices 0"; do
+  grep -qxF "$line" <<<"$out" || fail "a colour gap: no line '$line' in: $out"
+done
+
 # case NAME FOLDER EDIT: copies FOLDER, applies EDIT (bash, in the copy), runs --plan and the real
 # run, compares.
 case_() {

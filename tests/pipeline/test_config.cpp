@@ -357,7 +357,11 @@ TEST(Config, GenesisHeaderDefaultsToBigEndian) {
   EXPECT_TRUE(c.ct->raw->genesis);
   EXPECT_TRUE(c.ct->raw->big_endian);
   EXPECT_EQ(c.ct->raw->header_bytes, 0u);
+  // The CT's pixel spacing goes with it: read_slice checks each file's recorded pixel size.
+  ASSERT_TRUE(c.ct->raw->genesis_pixel_mm);
+  EXPECT_EQ(*c.ct->raw->genesis_pixel_mm, c.ct->pixel_spacing_mm);
   EXPECT_FALSE(c.rgb.raw->genesis);
+  EXPECT_FALSE(c.rgb.raw->genesis_pixel_mm);
   j["ct"]["raw"]["endian"] = "little";
   EXPECT_FALSE(load_config(write_config(dir, j)).ct->raw->big_endian);
 }

@@ -7,12 +7,14 @@
 #include <filesystem>
 #include <map>
 
+#include "packed_compare.h"
 #include "test_support.h"
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/nrrd.h"
 #include "vispack/format/reader.h"
 #include "vispack/phantom/phantom.h"
 #include "vispack/pipeline/imaging/slice_io.h"
+#include "vispack/pipeline/pack/pack.h"
 #include "vispack/pipeline/run/run.h"
 
 using namespace vispack;
@@ -213,36 +215,88 @@ TEST(Pack, MetadataDefectsAndReproducibility) {
       << out;
 }
 
-// The VH female's naming (a number per millimetre, a letter per 1/3 mm slice): a missing letter is
-// a missing slice like a missing number, listed by name in the metadata's slices.missing_slices
-// (missing_numbers lists only the numbers none of whose slices is there).
-TEST(Pack, MissingLettersAndNumbersAreListed) {
-  test::TempDir dir;
+namespace {
+
+// The tiny phantom with the VH female's naming (a number per millimetre, a letter per 1/3 mm
+// slice; CT and segmentation on every slot) and 8-slice bricks (three slabs), the colour files
+// of stack indices `gone` deleted; run to the packed file (streaming).
+Config lettered_tiny_to_pack(const test::TempDir& dir, const std::vector<int>& gone) {
   auto j = tiny_phantom(dir);
   j["spacing_mm"][2] = 1.0 / 3.0;
-  j["ct"]["slice_spacing_mm"] = 1.0 / 3.0;  // CT and segmentation on every slot
+  j["ct"]["slice_spacing_mm"] = 1.0 / 3.0;
   j["seg"]["slice_spacing_mm"] = 1.0 / 3.0;
   j["rgb"]["pattern"] = "avf{n}{a}.png";
+  j["pack"]["brick_edge"] = 8;
   write_file_atomic(dir / "config.json", j.dump());
   const std::string rgb = dir / j["rgb"]["dir"].get<std::string>();
   for (int k = 0; k < 24; ++k) {
     char from[32];
     std::snprintf(from, sizeof from, "/rgb_%04d.png", k);
     const std::string to = "/avf" + std::to_string(1000 + k / 3) + char('a' + k % 3) + ".png";
-    // Deleted: 1002b (k = 7) and the whole of 1005 (k = 15, 16, 17).
-    if (k == 7 || (k >= 15 && k <= 17))
+    if (std::find(gone.begin(), gone.end(), k) != gone.end())
       std::filesystem::remove(rgb + from);
     else
       std::filesystem::rename(rgb + from, rgb + to);
   }
-  const Config config = run_to_pack(dir);
+  return run_to_pack(dir);
+}
+
+}  // namespace
+
+// A missing letter is a missing slice like a missing number, listed by name in the metadata's
+// slices.missing_slices (missing_numbers lists only the numbers none of whose slices is there),
+// and each is an empty slice of the volume at its own z: the volume keeps the complete stack's
+// depth and every other slice lies at the complete stack's z, whether packed by the streaming
+// run, by vispack-pack or by shards and a merge (docs/ARCHITECTURE.md "Each input at its own z").
+TEST(Pack, MissingLettersAndNumbersAreListed) {
+  test::TempDir dir, whole_dir;
+  // Deleted: 1002b (k = 7) and the whole of 1005 (k = 15, 16, 17).
+  const std::vector<int> gone = {7, 15, 16, 17};
+  const Config config = lettered_tiny_to_pack(dir, gone);
+  const Config whole = lettered_tiny_to_pack(whole_dir, {});
   auto reader = format::Reader::open(config.output);
-  EXPECT_EQ(reader.dims()[2], 20);
+  EXPECT_EQ(reader.dims()[2], 24);
   const auto slices = reader.metadata()["extra"]["slices"];
   EXPECT_EQ(slices["count"], 20);
+  EXPECT_EQ(slices["depth"], 24);
   EXPECT_EQ(slices["missing_numbers"], nlohmann::json::array({1005}));
   EXPECT_EQ(slices["missing_slices"], nlohmann::json::array({"1002b", "1005a", "1005b", "1005c"}));
+  EXPECT_EQ(slices["missing_z"], nlohmann::json::array({7, 15, 16, 17}));
   const auto report =
       nlohmann::json::parse(read_file(config.work_dir + "/pack/report.json"))["quality"];
   EXPECT_EQ(report["missing_slices"], 4);
+  EXPECT_EQ(nlohmann::json::parse(read_file(config.work_dir + "/pack/report.json"))["dims"][2], 24);
+
+  // Slice by slice against the complete stack at the same z (the registration solve loses the
+  // pairs across the gaps: the bodies move by a fraction of a pixel, the CT is the same).
+  const test::PackedLevel0 gap_volume = test::read_packed_level0(config.output);
+  const test::PackedLevel0 whole_volume = test::read_packed_level0(whole.output);
+  test::expect_gaps_at_their_z(gap_volume, whole_volume, gone, 0.97, 0.97, 0.97);
+
+  // vispack-pack (staged), and shards of the stack then the merge: the same file byte for byte.
+  // The shards name stack indices: 0:8, 8:14 and 14:20 cover output z [0, 9), [9, 18) and
+  // [18, 24), so the first packs slabs 0 and 1 (starts 0 and 8), the second slab 2 (its start 16
+  // an empty slot), the third none.
+  const std::string streamed = read_file(config.output);
+  std::vector<int> slabs_packed;
+  auto again = [&](const std::vector<std::string>& shards) {
+    std::filesystem::remove(config.output);
+    std::filesystem::remove_all(config.work_dir + "/pack");
+    std::filesystem::remove_all(config.work_dir + "/pack-slabs");
+    StageOptions o;
+    o.quiet = true;
+    for (const auto& range : shards) {
+      o.slices = range;
+      slabs_packed.push_back(run_pack_stage(config, o).processed);
+    }
+    o.slices.clear();
+    if (shards.empty())
+      run_pack_stage(config, o);
+    else
+      run_pack_merge(config, o);
+    return read_file(config.output);
+  };
+  EXPECT_TRUE(again({}) == streamed) << "vispack-pack differs from the streaming run";
+  EXPECT_TRUE(again({"14:20", "0:8", "8:14"}) == streamed) << "shards and merge differ";
+  EXPECT_EQ(slabs_packed, (std::vector<int>{0, 2, 1}));
 }

@@ -2,8 +2,10 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cstdint>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <string>
@@ -314,6 +316,52 @@ TEST(SliceIo, GenesisHeaderGivesThePixelOffsetAndIsCheckedAgainstTheConfig) {
           "config's raw.bits is 16");
   refused(genesis_file(image, 3416, 19, 11, 16, 3),
           "GE Genesis header field compression (bytes 20..23) is 3: only 0 (none) and 1");
+}
+
+// `bytes` (genesis_file) with an image header at byte `at` (the int32 at 148..151) recording
+// pixels of x_mm by y_mm (big-endian float32 at its bytes 50..57).
+std::string with_pixel_size(std::string bytes, std::int32_t at, float x_mm, float y_mm) {
+  auto put = [&](std::size_t where, std::uint32_t v) {
+    for (int i = 0; i < 4; ++i)
+      bytes[where + std::size_t(i)] = char(v >> (24 - 8 * i) & 0xff);
+  };
+  std::uint32_t x = 0, y = 0;
+  std::memcpy(&x, &x_mm, 4);
+  std::memcpy(&y, &y_mm, 4);
+  put(148, std::uint32_t(at));
+  put(std::size_t(at) + 50, x);
+  put(std::size_t(at) + 54, y);
+  return bytes;
+}
+
+// The pixel size a Genesis image header records against ct.pixel_spacing_mm (the config loader
+// hands it to the CT's raw layout): within 1 % the file is read; a clear mismatch (another field
+// of view) is refused naming the file, both sizes and the key; a file without an image header
+// before its pixels, or a layout without the CT's spacing, is read as before.
+TEST(SliceIo, GenesisPixelSizeIsCheckedAgainstTheCtPixelSpacing) {
+  TempDir dir;
+  const cv::Mat image = make_image(19, 11, CV_16UC1);
+  vp::RawLayout layout = genesis_layout(19, 11);
+  layout.genesis_pixel_mm = std::array<double, 2>{0.9375, 0.9375};
+  const std::string path = dir / "c_vm1001.fre";
+  write_bytes(path, with_pixel_size(genesis_file(image, 3416, 19, 11), 2184, 0.94f, 0.9375f));
+  EXPECT_TRUE(equal(vp::read_slice(path, layout), image));
+  write_bytes(path, with_pixel_size(genesis_file(image, 3416, 19, 11), 2184, 0.9375f, 0.5f));
+  expect_error<vispack::InputError>(
+      [&] { vp::read_slice(path, layout); },
+      path +
+          ": GE Genesis image header (at byte 2184) records pixels of 0.9375 x 0.5 mm, the "
+          "config's ct.pixel_spacing_mm is [0.9375, 0.9375]");
+  vp::RawLayout no_spacing = layout;
+  no_spacing.genesis_pixel_mm.reset();
+  EXPECT_TRUE(equal(vp::read_slice(path, no_spacing), image));
+  // No image header before the pixels (offset 0, or one whose fields would lie in the pixels).
+  write_bytes(path, with_pixel_size(genesis_file(image, 3416, 19, 11), 0, 0, 0));
+  EXPECT_TRUE(equal(vp::read_slice(path, layout), image));
+  write_bytes(path,
+              with_pixel_size(genesis_file(image, 3416, 19, 11), 3400, 0.5f, 0.5f).substr(0, 3416) +
+                  genesis_file(image, 3416, 19, 11).substr(3416));
+  EXPECT_TRUE(equal(vp::read_slice(path, layout), image));
 }
 
 // Without raw.header "genesis", a Genesis file read with a header_bytes that is not its pixel

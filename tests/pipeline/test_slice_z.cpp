@@ -16,6 +16,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "packed_compare.h"
 #include "phantom_case.h"
 #include "test_support.h"
 #include "vispack/common/atomic_file.h"
@@ -409,10 +410,11 @@ TEST(SliceZ, AGapInTheColourNumbersIsReported) {
   EXPECT_EQ(vp::colour_gap_warning(c, placed({{1, -1}, {2, -1}, {3, -1}})), "");
   EXPECT_EQ(vp::colour_gap_warning(c, placed({{10, -1}, {20, -1}, {30, -1}})), "");  // step 10
   const std::string number = vp::colour_gap_warning(c, placed({{1, -1}, {2, -1}, {4, -1}}));
-  EXPECT_NE(number.find("colour slice 3 is missing (avf2.raw is followed by avf4.raw): every "
-                        "colour slice keeps its z from its file number (the CT and the "
-                        "segmentation are paired by it; the packed volume has no slice there"),
-            std::string::npos)
+  EXPECT_NE(
+      number.find("colour slice 3 is missing (avf2.raw is followed by avf4.raw): every "
+                  "colour slice keeps its z from its file number (the CT and the "
+                  "segmentation are paired by it; the packed volume has an empty slice there"),
+      std::string::npos)
       << number;
   c.spacing_mm[2] = 1.0 / 3.0;
   c.rgb.pattern = "avf{n}{a}.raw";
@@ -532,8 +534,8 @@ void drop_truth_slices(const std::string& truth, const std::string& out,
 
 // The anatomy phantom with a CT and a segmentation slice at every 3rd colour slice; `rename`
 // gives each colour file its new name (stack index → name, "" keeps it), `gone` lists the colour
-// files deleted before the run (stack indices). Runs register, mask and labels (with the CT
-// written per slice) and scores the remaining slices against their own truth.
+// files deleted before the run (stack indices). Runs register, mask, labels (with the CT written
+// per slice) and pack, and scores the remaining slices against their own truth.
 struct GapCase {
   TempDir dir{"vispack-slice-z-gap"};
   vp::Config config;
@@ -578,7 +580,7 @@ struct GapCase {
     }
     config = vp::load_config(dir / "config.json");
     vp::RunOptions run;
-    run.to = "labels";
+    run.to = "pack";
     run.quiet = true;
     vp::run_pipeline(config, run);
     drop_truth_slices(dir / "truth", dir / "truth-kept", gone);
@@ -614,6 +616,11 @@ void expect_like_whole(const GapCase& gap, const GapCase& whole, const std::vect
   EXPECT_LE(s.jumps.false_jumps, 3);
   EXPECT_GE(s.mask.stack_iou, w.mask.stack_iou - 0.005);
   EXPECT_GE(s.labels.overall, w.labels.overall - 0.01);
+  // The packed volume keeps the whole stack's depth: each deleted file an empty slice at its z
+  // (its slot: the whole stack's index), every other slice the whole stack's slice at that z.
+  const vispack::test::PackedLevel0 packed = vispack::test::read_packed_level0(gap.config.output);
+  vispack::test::expect_gaps_at_their_z(
+      packed, vispack::test::read_packed_level0(whole.config.output), gone, 0.95, 0.97, 0.95);
 }
 
 }  // namespace

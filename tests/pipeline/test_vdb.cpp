@@ -14,6 +14,7 @@
 #include <cstring>
 #include <filesystem>
 #include <map>
+#include <set>
 #include <thread>
 #include <tuple>
 
@@ -242,6 +243,61 @@ TEST(Vdb, ShardsTileTheWholeExport) {
     EXPECT_TRUE(gathered.labels == whole_labels)
         << "the parts' labels differ from the whole export";
   }
+}
+
+// Colour files 7, 15, 16 and 17 missing: the packed volume keeps the stack's full depth (each
+// missing file an empty slice at its z, docs/ARCHITECTURE.md "Each input at its own z"), the
+// export has active voxels exactly on the slices the packed alpha has body at the same z, and
+// shards named by stack indices export parts named by the output z they cover that tile it.
+TEST(Vdb, AStackWithMissingColourFilesKeepsItsDepthAndShardsTileIt) {
+  test::TempDir dir;
+  make_tiny_phantom(dir.path());
+  auto j = nlohmann::json::parse(read_file(dir / "config.json"));
+  j["ct"]["slice_spacing_mm"] = j["spacing_mm"][2];  // segmentation paired by z, not by number
+  j["seg"]["slice_spacing_mm"] = j["spacing_mm"][2];
+  write_file_atomic(dir / "config.json", j.dump());
+  const Config config = load_config(dir / "config.json");
+  const std::vector<int> gone = {7, 15, 16, 17};
+  for (int k : gone) {
+    char name[32];
+    std::snprintf(name, sizeof name, "/rgb_%04d.png", k);
+    ASSERT_TRUE(fs::remove(config.rgb.dir + name));
+  }
+  RunOptions options;
+  options.quiet = true;
+  run_pipeline(config, options);
+  const format::Reader packed = format::Reader::open(config.output);
+  ASSERT_EQ(packed.dims()[2], 24);
+  const std::vector<std::uint8_t> rgba = packed.read_level("rgba", 0);
+  const std::size_t plane = std::size_t(packed.dims()[0]) * std::size_t(packed.dims()[1]);
+  std::set<int> body_z;
+  for (std::size_t i = 0; i < rgba.size() / 4; ++i)
+    if (rgba[4 * i + 3] > 0) body_z.insert(int(i / plane));
+  for (int z : gone)
+    EXPECT_EQ(body_z.count(z), 0u) << "body in the empty slice " << z;
+  EXPECT_EQ(body_z.count(23), 1u) << "no body on the last file's slice (z 23)";
+  openvdb::initialize();
+  const auto whole_rgb = active_voxels(*read_grid<openvdb::Vec3SGrid>(config.vdb_output, "rgb"));
+  std::set<int> active_z;
+  for (const auto& [c, v] : whole_rgb)
+    active_z.insert(c[2]);
+  EXPECT_EQ(active_z, body_z) << "the export's slices are not the packed volume's";
+
+  GatheredParts gathered;
+  const std::vector<std::tuple<std::string, int, int>> shards = {
+      {"0:7", 0, 8}, {"7:13", 8, 14}, {"13:20", 14, 24}};  // stack indices, output z
+  for (const auto& [slices, z0, z1] : shards) {
+    StageOptions so;
+    so.quiet = true;
+    so.slices = slices;
+    const StageResult r = run_vdb_stage(config, so);
+    EXPECT_EQ(r.output, vdb_part_path(config, z0, z1)) << slices;
+    auto rgb = read_grid<openvdb::Vec3SGrid>(r.output, "rgb");
+    ASSERT_TRUE(rgb) << r.output;
+    gathered.add(r.output, *rgb, z0, z1);
+  }
+  EXPECT_EQ(gathered.voxels, whole_rgb.size());
+  EXPECT_TRUE(gathered.rgb == whole_rgb) << "the parts' colour differs from the whole export";
 }
 
 // The grids are built on several threads, each from a run of bricks, then merged: the trees are

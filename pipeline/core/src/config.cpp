@@ -487,6 +487,7 @@ void parse_ct_section(Section& top, Config& config, const std::string& base) {
     CtSource ct;
     parse_source(s, ct, base, "ct_{n}.png", 1);
     ct.pixel_spacing_mm = s.numbers<2>("pixel_spacing_mm", std::nullopt, 0.0, 1e6, true);
+    if (ct.raw && ct.raw->genesis) ct.raw->genesis_pixel_mm = ct.pixel_spacing_mm;
     ct.slope = s.number("slope", 1.0, -1e6, 1e6);
     if (ct.slope == 0) s.report("slope", "must not be 0");
     ct.intercept = s.number("intercept", -1024.0, -1e6, 1e6);

@@ -102,6 +102,25 @@ int colour_slot_count(const std::vector<SliceFile>& colour) {
   return colour.empty() ? 0 : colour.back().slot + 1;
 }
 
+int colour_slot_of_stack_index(const std::vector<SliceFile>& colour, int colour_k) {
+  return colour_k < int(colour.size()) ? colour[std::size_t(colour_k)].slot
+                                       : colour_slot_count(colour);
+}
+
+SliceRange colour_slots_of_stack_range(const std::vector<SliceFile>& colour, SliceRange stack) {
+  return {colour_slot_of_stack_index(colour, stack.first),
+          colour_slot_of_stack_index(colour, stack.last)};
+}
+
+SliceRange stack_range_of_colour_slots(const std::vector<SliceFile>& colour, SliceRange slots) {
+  auto first_at = [&](int slot) {
+    return int(std::lower_bound(colour.begin(), colour.end(), slot,
+                                [](const SliceFile& f, int s) { return f.slot < s; }) -
+               colour.begin());
+  };
+  return {first_at(slots.first), first_at(slots.last)};
+}
+
 double colour_z_mm(const Config& config, int colour_slot) {
   return colour_slot * config.spacing_mm[2];
 }

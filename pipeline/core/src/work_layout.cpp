@@ -98,7 +98,7 @@ std::string colour_gap_warning(const Config& config, const std::vector<SliceFile
              missing.size() > 1 ? cat(" and ", missing.size() - 1, " more") : "",
              ": every colour slice keeps its z from its file number (",
              config.ct || config.seg ? "the CT and the segmentation are paired by it; " : "",
-             "the packed volume has no slice there, listed in its slices.missing_slices)");
+             "the packed volume has an empty slice there, listed in its slices.missing_slices)");
 }
 
 std::vector<std::string> z_extent_warnings(const Config& config, int colour_count) {

@@ -72,6 +72,7 @@ cv::Mat read_raw(const std::string& path, const RawLayout& raw, std::uint64_t fi
     disagree("width", g.width, "width", raw.width);
     disagree("height", g.height, "height", raw.height);
     disagree("depth", g.bits, "bits", raw.bits);
+    if (raw.genesis_pixel_mm) check_genesis_pixel_size(path, bytes, g, *raw.genesis_pixel_mm);
     header = std::uint64_t(g.pixel_offset);
   } else if (file_size == header + sample_bytes) {
     bytes = read_file(path, std::size_t(file_size) + 1);

@@ -19,6 +19,7 @@
 #include "vispack/common/zero_paged_buffer.h"
 #include "vispack/format/downsample.h"
 #include "vispack/format/writer.h"
+#include "vispack/pipeline/core/slice_z.h"
 #include "vispack/pipeline/core/work_layout.h"
 #include "vispack/pipeline/imaging/intermediates.h"
 #include "vispack/pipeline/imaging/opencv_threads.h"
@@ -94,6 +95,17 @@ struct SliceBuffers {
     rgba.resize(plane * 4 * std::size_t(slices));
     if (plan.has_ct) ct.resize(plane * std::size_t(slices));
     if (plan.has_labels) labels.resize(plane * std::size_t(slices));
+  }
+  // Slice `z` := an empty slot's slice (a missing colour file, pack_plan.h): colour 0 and alpha 0,
+  // labels 0, CT -1024 HU (cleared as outside the body: no colour slice, so no transform to carry
+  // the CT into the frame and no mask; docs/ARCHITECTURE.md "Each input at its own z").
+  void clear(const PackPlan& plan, int z) {
+    const std::size_t plane = std::size_t(plan.out_size.width) * plan.out_size.height;
+    std::fill_n(rgba.begin() + std::ptrdiff_t(plane * 4 * std::size_t(z)), plane * 4, 0);
+    if (plan.has_ct)
+      std::fill_n(ct.begin() + std::ptrdiff_t(plane * std::size_t(z)), plane, std::int16_t(-1024));
+    if (plan.has_labels)
+      std::fill_n(labels.begin() + std::ptrdiff_t(plane * std::size_t(z)), plane, 0);
   }
   // Channel pointers of slice `z` (0-based within the buffers), in channel order.
   std::vector<const void*> slice(const PackPlan& plan, int z) const {
@@ -229,8 +241,9 @@ std::uint64_t convert_pack_slice(const PackPlan& plan, Intermediates in, SliceBu
   return in.bytes;
 }
 
-// The level-0 slabs [s0, s1) a shard of stack slices [A, B) packs: those whose first slice lies
-// in [A, B).
+// The level-0 slabs [s0, s1) a shard packs whose output z range is `range` (output_z_of_stack_range
+// of its stack slices [A, B)): those whose first slice lies in it. Shards that tile the stack tile
+// the output z, so every slab is packed by exactly one shard.
 std::pair<int, int> shard_slabs(int brick_edge, SliceRange range) {
   const int e = brick_edge;
   return {(range.first + e - 1) / e, (range.last + e - 1) / e};
@@ -284,7 +297,7 @@ StageResult no_slab_result(const Config& config) {
 
 StageResult run_pack_shard(const Config& config, const StageOptions& options, const PackPlan& plan,
                            SliceRange range) {
-  const auto [s0, s1] = shard_slabs(plan.wo.brick_edge, range);
+  const auto [s0, s1] = shard_slabs(plan.wo.brick_edge, output_z_of_stack_range(plan, range));
   if (s0 == s1) return no_slab_result(config);
   const std::unique_ptr<StageRun> run = slab_run(config, options, plan, s0, s1);
   // Slices are read and converted on this thread with OpenCV's pool: as many as --threads.
@@ -300,9 +313,13 @@ StageResult run_pack_shard(const Config& config, const StageOptions& options, co
     SlabBuffers buffers(plan, last - first);
     SliceBuffers slice(plan, 1);
     std::uint64_t bytes = 0;
-    for (int k = first; k < last; ++k) {
-      bytes += read_pack_slice(config, plan, k, slice, 0, ids_seen);
-      buffers.put(plan, k - first, slice, k);
+    for (int z = first; z < last; ++z) {
+      const int k = plan.stack_at_z[std::size_t(z)];
+      if (k < 0)
+        slice.clear(plan, 0);
+      else
+        bytes += read_pack_slice(config, plan, k, slice, 0, ids_seen);
+      buffers.put(plan, z - first, slice, k < 0 ? z : k);
     }
     write_slab(config, plan, *run, bz, buffers, input, bytes);
   }
@@ -328,10 +345,14 @@ StageResult run_pack_whole(const Config& config, const StageOptions& options,
   SliceBuffers buffers(plan, 1);
   std::uint64_t bytes = 0;
   std::set<std::uint16_t> ids_seen;
-  for (int k = 0; k < plan.n; ++k) {
-    bytes += read_pack_slice(config, plan, k, buffers, 0, ids_seen);
+  for (int z = 0; z < plan.n; ++z) {
+    const int k = plan.stack_at_z[std::size_t(z)];
+    if (k < 0)
+      buffers.clear(plan, 0);  // a missing colour file: an empty slice at its z
+    else
+      bytes += read_pack_slice(config, plan, k, buffers, 0, ids_seen);
     writer.append_slice(buffers.slice(plan, 0));
-    if (test_pause_enabled()) test_pause_point(cat("append:pack:", k));  // test_pause.h
+    if (k >= 0 && test_pause_enabled()) test_pause_point(cat("append:pack:", k));  // test_pause.h
     run.add_bytes(0);
   }
   writer.finish();
@@ -345,8 +366,8 @@ StageResult run_pack_whole(const Config& config, const StageOptions& options,
 StageResult run_pack_stage(const Config& config, const StageOptions& options) {
   PackPlan plan = plan_from_masks(config, options);
   if (!options.slices.empty()) {
-    SliceRange range = parse_slice_range(options.slices, plan.n);
-    if (range.first != 0 || range.last != plan.n)
+    SliceRange range = parse_slice_range(options.slices, plan.stack);
+    if (range.first != 0 || range.last != plan.stack)
       return run_pack_shard(config, options, plan, range);
   }
   return run_pack_whole(config, options, plan);
@@ -373,25 +394,42 @@ struct PackStream::Impl {
   // A shard (options.slices a partial range): the slices appended are range.first, ...; slabs
   // [s0, s1) are gathered in `slab` and encoded to slab files as they complete.
   bool shard = false;
-  SliceRange range;
+  SliceRange range;    // stack slices
+  SliceRange z_range;  // their output z (output_z_of_stack_range)
+  int next_z = 0;      // the next output z to place (empty slots before a slice are placed first)
   int s0 = 0, s1 = 0;
   std::unique_ptr<SlabBuffers> slab;
   int slab_slices_held = 0;  // slices `slab` was sized for
   std::uint64_t slab_bytes = 0;
+  std::unique_ptr<SliceBuffers> empty;  // an empty slot's slice, made at the first one
   Impl(const Config& c, const StageOptions& options)
       : config(c), plan(plan_from_masks(c, options)) {}
+  // Places output slices z = next_z, ... up to `until` (exclusive) as empty slots.
+  void place_empty_until(int until) {
+    while (next_z < until) {
+      if (!empty) {
+        empty = std::make_unique<SliceBuffers>(plan, 1);
+        empty->clear(plan, 0);
+      }
+      place(next_z, *empty, 0, next_z);
+    }
+  }
+  // Places output slice `z` (= next_z; `stack_slice`: the stack slice there, for messages).
+  void place(int z, const SliceBuffers& buffers, std::uint64_t slice_bytes, int stack_slice);
 };
 
 bool PackStream::streamable(const Config& config) {
   return !config.pack.crop_margin_px && (!config.seg || !config.seg->palette.empty());
 }
 
-bool PackStream::streamable(const Config& config, int stack_slices, SliceRange range) {
+bool PackStream::streamable(const Config& config, const std::vector<SliceFile>& stack,
+                            SliceRange range) {
   if (!streamable(config)) return false;
-  if (range.first == 0 && range.last == stack_slices) return true;
+  if (range.first == 0 && range.last == int(stack.size())) return true;
   const int e = config.pack.brick_edge;
-  const auto [s0, s1] = shard_slabs(e, range);
-  return s0 < s1 && std::min(stack_slices, s1 * e) <= range.last;
+  const SliceRange z = colour_slots_of_stack_range(stack, range);
+  const auto [s0, s1] = shard_slabs(e, z);
+  return s0 < s1 && std::min(colour_slot_count(stack), s1 * e) <= z.last;
 }
 
 PackStream::PackStream(const Config& config, const StageOptions& options) {
@@ -399,15 +437,17 @@ PackStream::PackStream(const Config& config, const StageOptions& options) {
     throw UsageError("the pack needs every slice first (pack.crop_margin_px or no palette)");
   impl_ = std::make_unique<Impl>(config, options);
   Impl& d = *impl_;
-  d.range = {0, d.plan.n};
-  if (!options.slices.empty()) d.range = parse_slice_range(options.slices, d.plan.n);
-  d.shard = d.range.first != 0 || d.range.last != d.plan.n;
+  d.range = {0, d.plan.stack};
+  if (!options.slices.empty()) d.range = parse_slice_range(options.slices, d.plan.stack);
+  d.shard = d.range.first != 0 || d.range.last != d.plan.stack;
+  d.z_range = output_z_of_stack_range(d.plan, d.range);
+  d.next_z = d.z_range.first;
   if (d.shard) {
-    if (!streamable(config, d.plan.n, d.range))
+    if (!streamable(config, d.plan.inputs.rgb, d.range))
       throw UsageError(cat("--slices ", options.slices, ": the pack shard's slabs (",
                            config.pack.brick_edge,
-                           " slices each) do not end inside the range: give whole slabs"));
-    std::tie(d.s0, d.s1) = shard_slabs(d.plan.wo.brick_edge, d.range);
+                           " output slices each) do not end inside the range: give whole slabs"));
+    std::tie(d.s0, d.s1) = shard_slabs(d.plan.wo.brick_edge, d.z_range);
     d.run = slab_run(config, options, d.plan, d.s0, d.s1);
     return;
   }
@@ -438,35 +478,44 @@ void PackStream::append(SlicePtr slice) {
   ++d.appended;
   d.ids_seen.insert(slice->ids.begin(), slice->ids.end());
   d.bytes += slice->bytes;
-  if (!d.shard) {
-    d.writer->append_slice(slice->buffers.slice(d.plan, 0));
-    if (test_pause_enabled()) test_pause_point(cat("append:pack:", k));  // test_pause.h
-    d.run->add_bytes(0);
+  // The empty slots before stack slice k (missing colour files), then the slice at its own z.
+  const int z = d.plan.inputs.rgb[std::size_t(k)].slot;
+  d.place_empty_until(z);
+  d.place(z, slice->buffers, slice->bytes, k);
+}
+
+void PackStream::Impl::place(int z, const SliceBuffers& buffers, std::uint64_t slice_bytes,
+                             int stack_slice) {
+  if (z != next_z) throw std::logic_error(cat("PackStream: output z ", z, " after ", next_z));
+  ++next_z;
+  if (!shard) {
+    writer->append_slice(buffers.slice(plan, 0));
+    if (test_pause_enabled()) test_pause_point(cat("append:pack:", z));  // test_pause.h
+    run->add_bytes(0);
     return;
   }
-  // A shard: slice k into its slab's buffers; a complete slab is encoded unless up to date.
-  const int bz = k / d.plan.wo.brick_edge;
-  if (bz < d.s0 || bz >= d.s1) return;  // before the shard's first slab start
-  const auto [first, last] = slab_slices(d.plan, bz);
-  if (k == first) {
-    if (!d.slab || d.slab_slices_held != last - first) {
-      d.slab.reset();
-      d.slab = std::make_unique<SlabBuffers>(d.plan, last - first);
-      d.slab_slices_held = last - first;
+  // A shard: slice z into its slab's buffers; a complete slab is encoded unless up to date.
+  const int bz = z / plan.wo.brick_edge;
+  if (bz < s0 || bz >= s1) return;  // before the shard's first slab start
+  const auto [first, last] = slab_slices(plan, bz);
+  if (z == first) {
+    if (!slab || slab_slices_held != last - first) {
+      slab.reset();
+      slab = std::make_unique<SlabBuffers>(plan, last - first);
+      slab_slices_held = last - first;
     }
-    d.slab_bytes = 0;
+    slab_bytes = 0;
   }
-  d.slab->put(d.plan, k - first, slice->buffers, k);
-  d.slab_bytes += slice->bytes;
-  slice.reset();
-  if (k != last - 1) return;
+  slab->put(plan, z - first, buffers, stack_slice);
+  slab_bytes += slice_bytes;
+  if (z != last - 1) return;
   // The slab's masks and labels are written: its input fingerprint is final.
-  const std::string input = slab_input(d.config, d.plan, bz);
-  if (d.run->up_to_date(bz, input, {slab_path(d.config, bz)})) {
-    d.run->skip(bz);
+  const std::string input = slab_input(config, plan, bz);
+  if (run->up_to_date(bz, input, {slab_path(config, bz)})) {
+    run->skip(bz);
     return;
   }
-  write_slab(d.config, d.plan, *d.run, bz, *d.slab, input, d.slab_bytes);
+  write_slab(config, plan, *run, bz, *slab, input, slab_bytes);
 }
 
 StageResult PackStream::finish() {
@@ -474,6 +523,7 @@ StageResult PackStream::finish() {
   if (d.appended != d.range.size())
     throw std::logic_error(
         cat("PackStream::finish: ", d.appended, " of ", d.range.size(), " slices appended"));
+  d.place_empty_until(d.z_range.last);  // the empty slots after the range's last file
   if (d.shard) {
     d.slab.reset();
     d.run->set_report("slabs", {d.s0, d.s1});

@@ -210,6 +210,14 @@ BrickSpan bricks_of_channel(const std::vector<format::EncodedBrick>& bricks, std
   return {first, first + per_channel};
 }
 
+// The stack slices [A, B) whose files lie in slab bz (what --slices names; an empty slot has none).
+std::pair<int, int> slab_stack_slices(const PackPlan& plan, std::int64_t bz) {
+  const auto [first, last] = slab_slices(plan, bz);
+  const SliceRange r = stack_range_of_output_z(plan, {first, last});
+  // A slab of empty slots only: the shard of the file before it packs it.
+  return {r.first == r.last ? std::max(0, r.first - 1) : r.first, r.last};
+}
+
 // The error for slab file `path` (of stack slices `slices`) not being there.
 InputError missing_slab(const std::string& path, std::pair<int, int> slices) {
   return InputError(cat(path, ": missing: the pack shard holding slices ", slices.first, ":",
@@ -271,7 +279,7 @@ StageResult run_pack_merge(const Config& config, const StageOptions& options) {
   // Every slab file must be there before anything is written.
   for (std::int64_t bz = 0; bz < slabs; ++bz) {
     const std::string path = slab_path(config, bz);
-    if (!fs::exists(path)) throw missing_slab(path, slab_slices(plan, bz));
+    if (!fs::exists(path)) throw missing_slab(path, slab_stack_slices(plan, bz));
   }
   make_directories(fs::path(config.output).parent_path().string());
   format::Writer writer(config.output, plan.wo);
@@ -290,6 +298,7 @@ StageResult run_pack_merge(const Config& config, const StageOptions& options) {
     const auto slices = slab_slices(plan, bz);
     const std::string input = slab_input(config, plan, bz);
     const int nzv = slices.second - slices.first;
+    const auto stack_slices = slab_stack_slices(plan, bz);
     const std::size_t n1 = has_level1 ? std::size_t(nzv + 1) / 2 : 0;
     std::vector<std::size_t> level1_bytes;
     if (has_level1)
@@ -297,7 +306,7 @@ StageResult run_pack_merge(const Config& config, const StageOptions& options) {
         level1_bytes.push_back(plane1 * n1 * format::channel_type_bytes(c.type));
     auto slab = std::make_unique<SlabFile>(
         path, slab_header_json(plan, stored, bz, std::size_t(gx * gy) * stored.size(), input),
-        input, slices, level1_bytes);
+        input, stack_slices, level1_bytes);
     bytes += fs::file_size(path);
     std::vector<format::EncodedBrick> bricks = slab->take_bricks();
     for (std::size_t c = 0; c < stored.size(); ++c)

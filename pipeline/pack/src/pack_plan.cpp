@@ -50,7 +50,7 @@ void plan_crop(const Config& config, const BodyBoundsSource& body_bounds, PackPl
   json crop_meta = nullptr;
   if (config.pack.crop_margin_px) {
     const int margin = *config.pack.crop_margin_px;
-    const cv::Rect body = body_bounds(n, full);
+    const cv::Rect body = body_bounds(plan.stack, full);
     plan.body = body;
     if (body.area() > 0) {
       const int x0 = std::max(0, body.x - margin) / f * f;
@@ -115,7 +115,7 @@ void plan_labels(const Config& config, PackPlan& plan) {
 // Metadata: slices, registration quality, provenance (content hashes only: reproducible). Sets
 // plan.missing, black and duplicated too.
 void plan_metadata(const Config& config, PackPlan& plan) {
-  const int n = plan.n, f = plan.f;
+  const int n = plan.stack, f = plan.f;
   const bool has_ct = plan.has_ct, has_labels = plan.has_labels;
   const std::vector<SliceFile>& stack = plan.inputs.rgb;
   const StackTransforms& transforms = plan.inputs.transforms;
@@ -126,12 +126,16 @@ void plan_metadata(const Config& config, PackPlan& plan) {
   std::vector<int> numbers, jumps;
   std::vector<int>&missing = plan.missing, &black = plan.black, &duplicated = plan.duplicated;
   double q_sum = 0, q_min = 1;
+  // Black, duplicated and jump slices: stack indices in the report, output z (the slot) in the
+  // volume's metadata (the viewer samples across the black ones, lost_slices.h).
+  std::vector<int> black_z, duplicated_z, jumps_z;
   for (int k = 0; k < n; ++k) {
     numbers.push_back(stack[k].number);
     const auto& t = transforms.slices[k];
-    if (t.black) black.push_back(k);
-    if (t.duplicate_of) duplicated.push_back(k);
-    if (t.jump) jumps.push_back(k);
+    const int z = stack[std::size_t(k)].slot;
+    if (t.black) black.push_back(k), black_z.push_back(z);
+    if (t.duplicate_of) duplicated.push_back(k), duplicated_z.push_back(z);
+    if (t.jump) jumps.push_back(k), jumps_z.push_back(z);
     q_sum += t.quality;
     q_min = std::min(q_min, t.quality);
   }
@@ -140,9 +144,14 @@ void plan_metadata(const Config& config, PackPlan& plan) {
       missing.push_back(m);
   // Every colour slot no file fills (slice_z.h): a missing number, or with {n}{a} a missing
   // letter ("1002b"), each a slice the volume lacks.
+  // Each is an empty slice of the volume at its own z (missing_z): colour 0 with alpha 0, labels 0,
+  // CT cleared (docs/ARCHITECTURE.md "Each input at its own z").
   std::vector<std::string> missing_slices;
-  for (const auto& m : missing_colour_slices(config, stack))
+  std::vector<int> missing_z;
+  for (const auto& m : missing_colour_slices(config, stack)) {
     missing_slices.push_back(m.name);
+    missing_z.push_back(m.slot);
+  }
   plan.missing_slices = missing_slices.size();
   std::string names;
   for (const auto& s : stack)
@@ -157,16 +166,18 @@ void plan_metadata(const Config& config, PackPlan& plan) {
       {"name", config.name},
       {"slices",
        {{"count", n},
+        {"depth", plan.n},
         {"first_number", n ? numbers.front() : 0},
         {"numbers", numbers},
         {"missing_numbers", missing},
         {"missing_slices", missing_slices},
-        {"black", black},
-        {"duplicated", duplicated}}},
+        {"missing_z", missing_z},
+        {"black", black_z},
+        {"duplicated", duplicated_z}}},
       {"registration",
        {{"mean_quality", n ? q_sum / n : 0.0},
         {"min_quality", q_min},
-        {"jumps", jumps},
+        {"jumps", jumps_z},
         {"frame", transforms.extra.value("frame", "slice0")},
         {"overrides", overrides}}},
       {"downsample", f},
@@ -176,6 +187,12 @@ void plan_metadata(const Config& config, PackPlan& plan) {
         {"ct", !has_ct                            ? "no CT"
                : config.pack.keep_ct_outside_body ? "kept"
                                                   : "cleared to -1024 HU"}}},
+      {"missing_slice",
+       {{"rgb", "0, alpha 0"},
+        {"ct", has_ct ? "-1024 HU (no colour slice, no transform, no mask: cleared as outside the "
+                        "body, never interpolated)"
+                      : "no CT"},
+        {"labels", has_labels ? "0" : "no labels"}}},
       {"crop", crop_meta},
       {"provenance",
        {{"tool", "vispack-pack"},
@@ -194,11 +211,23 @@ void plan_metadata(const Config& config, PackPlan& plan) {
 
 }  // namespace
 
+SliceRange output_z_of_stack_range(const PackPlan& plan, SliceRange stack) {
+  return colour_slots_of_stack_range(plan.inputs.rgb, stack);
+}
+
+SliceRange stack_range_of_output_z(const PackPlan& plan, SliceRange z) {
+  return stack_range_of_colour_slots(plan.inputs.rgb, z);
+}
+
 PackPlan plan_pack(const Config& config, const StageOptions& options,
                    const BodyBoundsSource& body_bounds) {
   PackPlan plan;
   plan.inputs = read_stack_inputs(config);
-  plan.n = int(plan.inputs.rgb.size());
+  plan.stack = int(plan.inputs.rgb.size());
+  plan.n = colour_slot_count(plan.inputs.rgb);
+  plan.stack_at_z.assign(std::size_t(plan.n), -1);
+  for (int k = 0; k < plan.stack; ++k)
+    plan.stack_at_z[std::size_t(plan.inputs.rgb[std::size_t(k)].slot)] = k;
   plan.has_ct = config.ct.has_value();
   plan.has_labels = config.seg.has_value();
   // One unit of work: its input fingerprint covers every intermediate read.

@@ -25,7 +25,12 @@ namespace vispack::pipeline::detail {
 // Everything a pack (whole, shard or merge) derives from the config and the work folder before
 // reading any slice: the writer options with the metadata, and the input fingerprint.
 struct PackPlan {
+  // The output depth: the colour slots the stack spans (slice_z.h colour_slot_count). Output z is
+  // the slot, so a colour file missing inside the stack is an empty slice at its own z
+  // (docs/ARCHITECTURE.md "Each input at its own z"); without a gap n is the stack's size.
   int n = 0;
+  int stack = 0;                // colour files (stack slices)
+  std::vector<int> stack_at_z;  // per output z: the stack slice there, or -1 (an empty slot)
   int f = 1;
   StackInputs inputs;  // the input slice lists and transforms.json (work_layout.h)
   cv::Size full, out_size;
@@ -41,6 +46,12 @@ struct PackPlan {
   std::size_t missing_slices = 0;  // colour slots no file fills (slice_z.h), letters included
   std::string input;               // the whole pack's input fingerprint (a merge records the same)
 };
+
+// The output z range [slot of A, slot of B) of the stack range [A, B) (slice_z.h
+// colour_slots_of_stack_range: ranges that tile the stack tile the volume), and the stack range
+// whose files lie in an output z range (for messages naming the --slices shard to run).
+SliceRange output_z_of_stack_range(const PackPlan& plan, SliceRange stack);
+SliceRange stack_range_of_output_z(const PackPlan& plan, SliceRange z);
 
 // The union of the body masks' bounding boxes over the stack's `slice_count` slices of the
 // full-resolution frame `full` (empty when no slice has body); asked only when

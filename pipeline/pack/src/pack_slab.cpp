@@ -34,7 +34,12 @@ std::string slab_input(const Config& config, const PackPlan& plan, std::int64_t 
   auto [first, last] = slab_slices(plan, bz);
   // Colour and CT are rebuilt from the inputs with transforms.json (work_layout.h).
   fp.content(transforms_path(config));  // by its bytes: shards may rewrite it (fingerprint.h)
-  for (int k = first; k < last; ++k) {
+  for (int z = first; z < last; ++z) {
+    const int k = plan.stack_at_z[std::size_t(z)];
+    if (k < 0) {
+      fp.text("empty slot");  // a missing colour file: an empty slice (pack_plan.h)
+      continue;
+    }
     fp.file(plan.inputs.rgb[std::size_t(k)].path).file(mask_path(config, k));
     if (config.ct) {
       const CtAtZ at = ct_at_colour_slice(config, int(plan.inputs.ct.size()),

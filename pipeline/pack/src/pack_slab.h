@@ -32,7 +32,8 @@ struct SlabContent {
   std::vector<std::uint64_t> level1_raw;
 };
 
-// The stack slices [first, last) of level-0 slab bz.
+// The output z range [first, last) of level-0 slab bz (output z = colour slot, pack_plan.h; the
+// stack slices in it: stack_range_of_output_z).
 std::pair<int, int> slab_slices(const PackPlan& plan, std::int64_t bz);
 
 // What a slab is made from: its slices' intermediates, the palette (it decides the stored label

@@ -54,7 +54,7 @@ Plan plan_run(const Config& config) {
     if (name == "vdb" && (!config.vdb.enabled || config.vdb_output.empty())) continue;
     plan.stages.push_back(name);
   }
-  plan.pack_slab_slices = config.pack.brick_edge;
+  plan.pack_slab_slices = colour_slot_count(stack) == plan.slices ? config.pack.brick_edge : 0;
   plan.warnings = z_extent_warnings(config, colour_slot_count(stack));
   if (std::string gap = colour_gap_warning(config, stack); !gap.empty())
     plan.warnings.push_back(std::move(gap));

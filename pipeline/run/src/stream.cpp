@@ -81,7 +81,6 @@ void ordered_pipeline(int n, int threads, int window, const std::function<SliceP
 
 std::vector<StageResult> run_stream(const Config& config, const StageOptions& options) {
   const StackInputs inputs = read_stack_inputs(config);
-  const int n = int(inputs.rgb.size());
   const cv::Size size = grid_size(inputs.transforms);
   MaskStageJob mask(config, inputs, options);
   const SliceRange range = mask.run().range();  // options.slices, or the whole stack
@@ -102,7 +101,7 @@ std::vector<StageResult> run_stream(const Config& config, const StageOptions& op
     all_fresh = all_fresh && mask_fresh[std::size_t(i)] && labels_fresh[std::size_t(i)];
   }
   std::unique_ptr<PackStream> pack;
-  if (!all_fresh && PackStream::streamable(config, n, range))
+  if (!all_fresh && PackStream::streamable(config, inputs.rgb, range))
     pack = std::make_unique<PackStream>(config, options);
 
   // Slice k: read once, computed once, written as the stages write it, converted for the pack.

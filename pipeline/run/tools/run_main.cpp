@@ -44,7 +44,8 @@ int main(int argc, char** argv) {
         "the dry run: check the config, read the first and the last slice of every input "
         "folder (and the colour stack's middle one, as register does), print \"slices N\", "
         "\"stages ...\" (the stages the config enables), \"pack_slab_slices E\" (slices per "
-        "level-0 slab of the pack) and one \"input ...\" line per folder, and exit: a wrong "
+        "level-0 slab of the pack; 0 when a colour file is missing inside the stack) and one "
+        "\"input ...\" line per folder, and exit: a wrong "
         "raw size, layout or header or a file that is not an image fails here with the run's "
         "error; writes nothing");
     std::string config_path = args.positional("CONFIG", "pipeline config (JSON)");

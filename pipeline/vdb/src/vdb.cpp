@@ -24,6 +24,7 @@
 #include "vispack/common/error.h"
 #include "vispack/common/parallel.h"
 #include "vispack/format/reader.h"
+#include "vispack/pipeline/core/slice_z.h"
 #include "vispack/pipeline/core/version.h"
 #include "vispack/pipeline/core/work_layout.h"
 #include "vispack/pipeline/vdb/vdb_level.h"
@@ -637,10 +638,17 @@ void remove_stale_index(const std::string& index, const nlohmann::json& header,
 StageResult export_vdb(const Config& config, const StageOptions& options) {
   if (!config.vdb.enabled || config.vdb_output.empty())
     throw ConfigError(cat(config.path, ": vdb.enabled is false: no OpenVDB export configured"));
-  const int stack = int(stack_slices(config).size());
-  SliceRange slices{0, stack};
-  if (!options.slices.empty()) slices = parse_slice_range(options.slices, stack);
-  const bool sharded = slices.first != 0 || slices.last != stack;
+  // --slices A:B names stack indices (as every stage's); the export works in level-0 output z,
+  // where stack slice k lies at its colour slot (a missing colour file is an empty slice of the
+  // packed volume: slice_z.h). `stack` is the level-0 depth and `slices` the shard's output z
+  // [slot of A, slot of B): shards that tile the stack tile it. Without a gap both are the stack
+  // indices. Part files and records are named by output z.
+  const std::vector<SliceFile> files = stack_slices(config);
+  SliceRange given{0, int(files.size())};
+  if (!options.slices.empty()) given = parse_slice_range(options.slices, int(files.size()));
+  const bool sharded = given.first != 0 || given.last != int(files.size());
+  const int stack = colour_slot_count(files);
+  const SliceRange slices = colour_slots_of_stack_range(files, given);
   if (!fs::exists(config.output))
     throw InputError(cat(config.output,
                          ": packed file missing: vispack-vdb exports the packed "
@@ -656,7 +664,7 @@ StageResult export_vdb(const Config& config, const StageOptions& options) {
   fp.file(config.output).text(output);
   if (sharded) fp.text(cat(slices.first, ":", slices.last));
   StageOptions unit = options;
-  if (!sharded) unit.slices.clear();
+  unit.slices = sharded ? cat(slices.first, ":", slices.last) : std::string();
   StageRun run(config, sharded ? "vdb-parts" : "vdb", sharded ? stack : 1, unit, {"vdb"});
   const int unit_index = sharded ? slices.first : 0;
   run.remove_stale_temporaries_of(output);

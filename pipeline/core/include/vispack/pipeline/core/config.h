@@ -37,6 +37,9 @@ struct RawLayout {
   // "IMGF"), checked against width, height and bits; header_bytes is unused (0). Big-endian
   // samples unless `endian` says otherwise (slice_io.h read_slice).
   bool genesis = false;
+  // With `genesis`, the CT's ct.pixel_spacing_mm (set by the config loader, not a raw key): a file
+  // whose image header records a pixel size more than 1 % off it is refused (genesis.h).
+  std::optional<std::array<double, 2>> genesis_pixel_mm = std::nullopt;
 };
 
 // One slice folder: files matched by `pattern` ({n} = the slice number), sorted by number.

@@ -3,13 +3,14 @@
 // segmentation slice with a colour slice goes through this file, never through equal stack indices.
 //
 // Frames and units. z is in mm along the stack, 0 at the colour stack's first file:
-//   z of colour slice k (stack index k = output z)          = slot_k · spacing_mm[2]
+//   z of colour slice k (stack index k; output z = slot_k)  = slot_k · spacing_mm[2]
 //   z of CT slice j (the CT stack index, sorted by number)  = ct.z_offset_mm + j ·
 //   ct.slice_spacing_mm z of segmentation slice j (with seg.slice_spacing_mm)   = seg.z_offset_mm +
 //   j · seg.slice_spacing_mm
 // The colour slot comes from the file's number, never from its position in the stack
 // (place_colour_slices): a colour file missing inside the stack leaves its slot empty and every
-// later slice keeps its z against the CT and the segmentation. Without gaps slot_k = k.
+// later slice keeps its z against the CT and the segmentation, and the packed volume has an empty
+// slice at that z (its depth is colour_slot_count). Without gaps slot_k = k.
 // Variables name their stack: `colour_k` for a colour slice index, `colour_slot` for its slot,
 // `ct_j` / `seg_j` for an index into the CT / segmentation stack. Defaults (ct.slice_spacing_mm =
 // spacing_mm[2], z_offset_mm = 0) put CT slice j exactly on colour slot j: the 1:1 case reads one
@@ -38,6 +39,7 @@
 #include <string>
 #include <vector>
 
+#include "vispack/common/cli.h"
 #include "vispack/pipeline/core/config.h"
 #include "vispack/pipeline/core/slice_list.h"
 
@@ -58,6 +60,17 @@ std::vector<MissingColourSlice> missing_colour_slices(const Config& config,
 
 // The number of colour slots the stack spans (last slot + 1; 0 for an empty stack).
 int colour_slot_count(const std::vector<SliceFile>& colour);
+
+// The slot (output z) where stack slice `colour_k` begins: colour[colour_k].slot, and
+// colour_slot_count for colour_k == colour.size(). A range [A, B) of stack indices (a --slices
+// shard) covers the slots [slot of A, slot of B): the empty slots after its last file are its own,
+// so ranges that tile the stack tile the slots (colour_slots_of_stack_range). Needs placed slices.
+int colour_slot_of_stack_index(const std::vector<SliceFile>& colour, int colour_k);
+SliceRange colour_slots_of_stack_range(const std::vector<SliceFile>& colour, SliceRange stack);
+// The inverse: the stack indices [A, B) whose files lie in the slots [first, last) (A: the first
+// file at or after slot `first`, B: the first at or after `last`), for messages that name the
+// --slices shard holding some slots.
+SliceRange stack_range_of_colour_slots(const std::vector<SliceFile>& colour, SliceRange slots);
 
 // z (mm) of colour slot `colour_slot` (slot_k of colour slice k).
 double colour_z_mm(const Config& config, int colour_slot);

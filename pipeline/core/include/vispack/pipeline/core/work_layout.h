@@ -55,7 +55,7 @@ std::vector<std::string> z_extent_warnings(const Config& config, int colour_coun
 
 // A gap in the colour stack (slice_z.h missing_colour_slices: a number missing; with {n}{a}, a
 // letter): every colour slice keeps its z from its file number, so the CT and the segmentation
-// stay paired right, but the packed volume has no slice there. The warning names the first
+// stay paired right, but the packed volume has an empty slice there. The warning names the first
 // missing slice and its neighbours and how many more there are; "" when none is missing. Needs a
 // placed stack (stack_slices).
 std::string colour_gap_warning(const Config& config, const std::vector<SliceFile>& colour);

@@ -8,10 +8,14 @@
 // bits per pixel (16..19) and compression (20..23: 0 none, 1 rectangular, 2 packed, 3 compressed,
 // 4 compressed and packed). Only 0 and 1 store the width × height samples as they are (big-endian
 // 16-bit for CT); the others store rows of varying length or deltas and are refused.
+// The image header (its byte offset: the big-endian int32 at bytes 148..151) records the pixel
+// size: big-endian float32 x and y in mm at its bytes 50..53 and 54..57 (the same sources).
 // Pure functions; thread-safe.
 #pragma once
 
+#include <array>
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <string_view>
 
@@ -37,5 +41,24 @@ bool has_genesis_magic(std::string_view head);
 // a compression other than 0 or 1.
 GenesisHeader parse_genesis_header(const std::string& path, std::string_view head,
                                    std::uint64_t file_size);
+
+// The pixel size (mm) the image header records, read from `file` (the whole file, or at least
+// its header up to the pixel data); none when the file has no image header before its pixels (the
+// offset at 148..151 is 0, points inside the fixed part or past the pixel data offset) or records
+// no positive finite size there. Never throws.
+struct GenesisPixelSize {
+  double x_mm = 0, y_mm = 0;
+  std::int64_t image_header_offset = 0;
+};
+std::optional<GenesisPixelSize> genesis_pixel_size(std::string_view file,
+                                                   const GenesisHeader& header);
+
+// Throws InputError naming `path`, both sizes and the key `ct.pixel_spacing_mm` when the file's
+// recorded pixel size (genesis_pixel_size) differs from `configured_mm` (x, y) by more than 1 % on
+// either axis: a clear mismatch (another field of view, the wrong template). Does nothing when the
+// file records none.
+void check_genesis_pixel_size(const std::string& path, std::string_view file,
+                              const GenesisHeader& header,
+                              const std::array<double, 2>& configured_mm);
 
 }  // namespace vispack::pipeline

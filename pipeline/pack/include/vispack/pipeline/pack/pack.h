@@ -17,36 +17,44 @@
 // of the downsampling factor (so the cropped grid is a sub-box of the uncropped one); origin_mm
 // moves by the box's corner; metadata extra.crop records margin, box (full-resolution output
 // pixels: x, y, width, height) and the uncropped dims. The masks are read once more for it.
+// Output z is the colour slot (slice_z.h): a colour file missing inside the stack is an empty
+// slice at its own z (colour 0, alpha 0, labels 0, CT −1024 HU as outside the body: it has no
+// transform and no mask, so no CT is interpolated into it; docs/ARCHITECTURE.md "Each input at
+// its own z"), so the volume's depth is the slots the stack spans, its z spacing is the colour
+// slice spacing throughout, and extra.slices lists the empty slices (missing_slices, missing_z).
 // Streaming: one slice of each channel is read, converted and appended at a time; the format
 // Writer keeps one level-0 slab of brick_edge slices and spills the coarser levels' slabs to a
 // nameless scratch file (format/writer.h "Memory"), so peak memory is about one level-0 brick row
 // plus ~150 MB, whatever the slice count (docs/BENCHMARKS.md "Pack memory against the slice
 // count").
 // Metadata ("extra"): label table (palette.json, or the IDs present when there is none), missing
-// slice numbers (gaps in the rgb file numbering), black and duplicated slices and registration
-// quality (from transforms.json), provenance (vispack version, config hash, input hashes: xxHash64
-// of transforms.json, palette, id map and of the input slices' names and sizes). No timestamps:
-// the same inputs and config give a byte-identical file.
+// slice numbers and names (gaps in the rgb file numbering) and their output z, black and
+// duplicated slices (output z) and registration quality (from transforms.json), provenance (vispack
+// version, config hash, input hashes: xxHash64 of transforms.json, palette, id map and of the input
+// slices' names and sizes). No timestamps: the same inputs and config give a byte-identical file.
 // Sharding (format/SPEC.md "Partial slab files"): a shard `--slices A:B` (a partial range)
-// encodes the level-0 slabs (brick rows of brick_edge slices along z) whose FIRST slice lies in
-// [A, B), so any partition of the stack into ranges partitions the slabs (a range holding no slab
-// start does nothing). Each slab becomes <work>/pack-slabs/slab_NNNN.vpkslab (NNNN = bz), written
-// atomically, recorded in the pack-slabs manifest (resume keeps finished slabs; --force redoes
-// them). A slab file also carries the slab's level-1 slices (zstd). run_pack_merge then writes
-// config.output from every slab file: level-0 payloads are copied as they are (never decoded or
-// recompressed), the coarser levels are built from the level-1 slices, and the file is
-// byte-identical to a whole-stack pack of the same intermediates (the one brick encoder
-// and the same slab order: format/writer.h). A merge refuses a missing slab file, one written with
-// other options, and one whose slices changed since (InputError naming the file and the --slices
-// shard to rerun). The merge records the whole pack's input fingerprint, so a later whole pack
-// (or vispack-run) finds the output up to date.
-// Up to date: pack is one unit whose input fingerprint covers every intermediate it reads and
-// the "pack", "spacing_mm", "name" config sections; the output file's identity is recorded.
+// encodes the level-0 slabs (brick rows of brick_edge output slices along z) whose FIRST slice
+// lies in the range's output z [slot of A, slot of B) (A, B stack indices; the empty slots after a
+// file belong to its range), so any partition of the stack into ranges partitions the slabs (a
+// range holding no slab start does nothing). Each slab becomes <work>/pack-slabs/slab_NNNN.vpkslab
+// (NNNN = bz), written atomically, recorded in the pack-slabs manifest (resume keeps finished
+// slabs; --force redoes them). A slab file also carries the slab's level-1 slices (zstd).
+// run_pack_merge then writes config.output from every slab file: level-0 payloads are copied as
+// they are (never decoded or recompressed), the coarser levels are built from the level-1 slices,
+// and the file is byte-identical to a whole-stack pack of the same intermediates (the one brick
+// encoder and the same slab order: format/writer.h). A merge refuses a missing slab file, one
+// written with other options, and one whose slices changed since (InputError naming the file and
+// the --slices shard to rerun). The merge records the whole pack's input fingerprint, so a later
+// whole pack (or vispack-run) finds the output up to date. Up to date: pack is one unit whose input
+// fingerprint covers every intermediate it reads and the "pack", "spacing_mm", "name" config
+// sections; the output file's identity is recorded.
 #pragma once
 
 #include <memory>
+#include <vector>
 
 #include "vispack/pipeline/core/config.h"
+#include "vispack/pipeline/core/slice_list.h"
 #include "vispack/pipeline/core/stage_run.h"
 #include "vispack/pipeline/core/work_layout.h"
 #include "vispack/pipeline/imaging/intermediates.h"
@@ -77,10 +85,14 @@ class PackStream {
   // palette (the label table is the labels stage report's "ids_present"). The streaming run then
   // writes masks and labels first and packs from the work folder (run_pack_stage).
   static bool streamable(const Config& config);
-  // streamable(config) for the shard `range` of a stack of `stack_slices` slices: also false when
-  // the range starts no slab, or when its last slab ends after range.last (that slab needs
-  // another shard's slices: the shard's pack then runs after every shard, as vispack-pack).
-  static bool streamable(const Config& config, int stack_slices, SliceRange range);
+  // streamable(config) for the shard `range` (stack indices) of the placed colour stack `stack`:
+  // also false when the range's output z (slots, slice_z.h colour_slots_of_stack_range) starts no
+  // slab, or when its last slab ends after them (that slab needs another shard's slices: the
+  // shard's pack then runs after every shard, as vispack-pack). Without a missing colour file the
+  // output z of a stack slice is its index; with one, slabs of brick_edge output slices hold fewer
+  // files and ranges aligned to brick_edge stack slices need not be whole slabs.
+  static bool streamable(const Config& config, const std::vector<SliceFile>& stack,
+                         SliceRange range);
   // Plans the pack and opens the Writer (whole stack) or the pack-slabs stage run (a shard).
   // Throws UsageError when not streamable (above); otherwise as run_pack_stage.
   PackStream(const Config& config, const StageOptions& options);

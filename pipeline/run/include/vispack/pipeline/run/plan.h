@@ -20,7 +20,11 @@ struct PlannedInput {
 struct Plan {
   int slices = 0;                   // the colour stack
   std::vector<std::string> stages;  // the stages the config enables, in order
-  int pack_slab_slices = 0;         // slices per level-0 slab of the pack
+  // Stack slices per level-0 slab of the pack (pack.brick_edge); 0 when a colour file is missing
+  // inside the stack: slabs are brick_edge output slices (slots) and then hold fewer files, so no
+  // fixed count of stack slices makes whole slabs (scripts/cluster_plan.py then shards the stack
+  // evenly and packs in a step of its own, which is right for any shard bounds).
+  int pack_slab_slices = 0;
   std::vector<PlannedInput> inputs;
   std::vector<std::string> warnings;  // the z-extent warnings a run would give
 };
