@@ -205,3 +205,25 @@ TEST(PngDecode, FilesItDoesNotHandleAreDeclinedAndStillRead) {
     palette[29 + std::size_t(i)] = char((crc >> (24 - 8 * i)) & 0xff);
   EXPECT_FALSE(vp::decode_plain_png(palette, kEdge, kBytes).has_value());
 }
+
+TEST(PngDecode, ChunkTypeThatIsNotFourLettersIsDeclined) {
+  // libpng refuses a chunk whose type is not four ASCII letters ("oF\x01\x00": found by
+  // fuzz_png_decode, which checks every accepted file against OpenImageIO); the decoder declines
+  // it too, so read_slice refuses it through OpenImageIO instead of reading it.
+  const cv::Mat image = noise(13, 9, CV_16UC1, 5);
+  const std::string png = encode_png(image);
+  ASSERT_TRUE(vp::decode_plain_png(png, kEdge, kBytes).has_value());
+  const std::size_t after_ihdr = 8 + 12 + 13;
+  for (const char* type : {"oF\x01\x00", "ab1d", "a d "}) {
+    std::string odd;
+    chunk(odd, type, std::string(9, '\0'));
+    const std::string file = png.substr(0, after_ihdr) + odd + png.substr(after_ihdr);
+    EXPECT_FALSE(vp::decode_plain_png(file, kEdge, kBytes).has_value()) << type;
+  }
+  // The same chunk with a letter type is an ancillary chunk the decoder skips.
+  std::string letters;
+  chunk(letters, "oFFs", std::string(9, '\0'));
+  EXPECT_TRUE(vp::decode_plain_png(png.substr(0, after_ihdr) + letters + png.substr(after_ihdr),
+                                   kEdge, kBytes)
+                  .has_value());
+}

@@ -116,6 +116,10 @@ std::optional<cv::Mat> decode_plain_png(std::string_view bytes, int max_edge,
     if (length > size - at - 12) return std::nullopt;
     const unsigned char* type = data + at + 4;
     const unsigned char* body = type + 4;
+    // A chunk type is four ASCII letters (PNG specification, 5.3); libpng refuses any other.
+    for (int i = 0; i < 4; ++i)
+      if (!((type[i] >= 'A' && type[i] <= 'Z') || (type[i] >= 'a' && type[i] <= 'z')))
+        return std::nullopt;
     if (libdeflate_crc32(0, type, length + 4) != be32(body + length)) return std::nullopt;
     const bool ihdr = std::memcmp(type, "IHDR", 4) == 0;
     const bool idat = std::memcmp(type, "IDAT", 4) == 0;
