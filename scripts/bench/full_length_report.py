@@ -254,8 +254,10 @@ def targets(stacks, not_run=None):
         line = f"{c:.3f} CPU-s per colour slice, peak {fw['time_v']['peak_rss_mib']:,.0f} MiB"
         if small:
             line += f" ({fw['time_v']['peak_rss_mib'] / run_of(small, 'warm')['time_v']['peak_rss_mib']:.2f}× the 128-slice male's)"
+        n = fem["ct_every"]
+        nth = f"{n}{ {1: 'st', 2: 'nd', 3: 'rd'}.get(n, 'th') }"
         rows.append([f"the female's shape ({fem['slices']:,} colour slices, a CT slice at every "
-                     f"{fem['ct_every']}rd): the male's numbers hold", line,
+                     f"{nth}): the male's numbers hold", line,
                      "met" if c <= 0.3 and (not small or fw["time_v"]["peak_rss_mib"] <= 1.25 *
                                             run_of(small, "warm")["time_v"]["peak_rss_mib"]) else "**not met**"])
     for s in stacks:
