@@ -26,7 +26,7 @@ enum class PngEncoding {
   kAdaptive,  // libpng's adaptive choice among five row filters, zlib's default strategy
   // One row filter (Up) and zlib's run-length strategy. For masks, label slices and CT copies
   // (long runs of one value) this encodes ~3x faster than kAdaptive and gives smaller files
-  // (measured by hand at 2048x1216: mask 20 -> 8 kB, label slice 48 -> 22 kB; docs/BENCHMARKS.md
+  // (measured by hand at 2048x1216: mask 20 -> 8 kB, label slice 48 -> 22 kB; docs/PERF_HISTORY.md
   // "Work-folder PNGs").
   kUpRuns,
   // One row filter (Up) and zlib's Huffman-only strategy: no search for repeats. For pictures of

@@ -67,7 +67,7 @@ enum class WorkImageContent {
 // zlib level 1 with the Up row filter and, by `content`, zlib's run-length strategy
 // (PngEncoding::kUpRuns) or its Huffman-only one (kUpHuffman); other extensions as write_image.
 // At 2048x1216 the run-length choice took the streaming pass (mask + labels + pack) from 0.181 to
-// 0.131 CPU-s per slice, and the mask and label PNGs shrink to less than half (docs/BENCHMARKS.md
+// 0.131 CPU-s per slice, and the mask and label PNGs shrink to less than half (docs/PERF_HISTORY.md
 // "Work-folder PNGs"); Huffman-only encodes a mask overlay faster at the same size
 // (docs/BENCHMARKS.md "The streaming pass: overlay PNGs and CT slices decoded once"). Lossless;
 // deterministic bytes; throws IoError naming the path.
