@@ -2,8 +2,9 @@
 # Runs the whole test suite: installs what is missing, fetches the real sample data, checks the
 # C++ formatting (scripts/check-format.sh), builds Release,
 # runs ctest (unit, command-line and headless image tests), the cluster tests (a one-node SLURM,
-# tests/cluster/; they skip where not root), then the sanitizer build (ASan+UBSan)
-# of every test but the benchmarks, short fuzz runs and the quick benchmark. Both builds use
+# tests/cluster/; they skip where not root; they run beside the sanitizer build, since they mostly
+# wait), then the sanitizer build (ASan+UBSan) of every test but the benchmarks, short fuzz runs
+# (the targets side by side, one per core) and the quick benchmark. Both builds use
 # -Werror (VISPACK_WERROR). Prints each step's time and the total.
 # Usage: scripts/test.sh [--sanitize-only] [--no-sanitize] [--no-fuzz] [--no-bench]
 set -euo pipefail
@@ -16,7 +17,7 @@ for arg in "$@"; do
     --no-sanitize) sanitize=0 ;;
     --no-fuzz) fuzz=0 ;;
     --no-bench) bench=0 ;;
-    -h|--help) sed -n '2,8p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,9p' "$0"; exit 0 ;;
     *) echo "test.sh: unknown option $arg" >&2; exit 2 ;;
   esac
 done
@@ -38,6 +39,12 @@ stamp() {
   printf '\n== [%4ds] %s\n' $(( step_start - start )) "$*"
 }
 summary() {
+  # A step that failed under `set -e` ends the script: the cluster tests still running beside the
+  # sanitizer build are waited for, so their result is not lost.
+  if [[ -n ${cluster_pid:-} ]]; then
+    wait "$cluster_pid" || echo "test.sh: the cluster tests failed (output below)" >&2
+    cat "$cluster_log"
+  fi
   end_step
   echo
   echo "== Time per step"
@@ -52,7 +59,7 @@ trap summary EXIT
 stamp "Installing missing Debian packages"
 scripts/install-deps.sh
 
-failed=0
+failed=0 cluster_pid="" cluster_log=""
 # Under CI (CI=true, as .ci/run sees it) or with VISPACK_STRICT=1 a skipped test fails the run:
 # a suite that skips what it cannot check is green while checking nothing. The tests that may
 # skip even there are listed in tests/optional_skips.txt (a ctest name regex and the reason per
@@ -103,9 +110,18 @@ if [[ $main == 1 ]]; then
   scripts/build.sh "$root/build" -DVISPACK_WERROR=ON
   stamp "Running ctest (all but the cluster tests)"
   run_ctest build -j "$jobs" --timeout 600 -LE cluster || failed=1
-  # Apart: the real-SLURM test starts daemons and times the cluster paths (tests/cluster/).
-  stamp "Cluster tests: one-node SLURM and Snakemake against vispack-run (ctest -L cluster)"
-  run_ctest build --timeout 600 -L cluster || failed=1
+  # Apart from the rest: the real-SLURM test starts daemons and times the cluster paths
+  # (tests/cluster/). They spend most of their minute waiting on SLURM and Snakemake, so when the
+  # sanitizer build follows they run beside it, their output printed when they end.
+  if [[ $sanitize == 1 ]]; then
+    cluster_log=$root/build/cluster-tests.log
+    echo "test.sh: the cluster tests run beside the sanitizer build (output: $cluster_log)"
+    run_ctest build --timeout 600 -L cluster >"$cluster_log" 2>&1 &
+    cluster_pid=$!
+  else
+    stamp "Cluster tests: one-node SLURM and Snakemake against vispack-run (ctest -L cluster)"
+    run_ctest build --timeout 600 -L cluster || failed=1
+  fi
 fi
 
 if [[ $sanitize == 1 ]]; then
@@ -115,6 +131,12 @@ if [[ $sanitize == 1 ]]; then
   stamp "Building with clang, ASan+UBSan and libFuzzer into build-sanitize/"
   CC=clang CXX=clang++ VISPACK_BUILD_TYPE=RelWithDebInfo scripts/build.sh "$root/build-sanitize" \
     -DVISPACK_SANITIZE=ON -DVISPACK_FUZZ=ON -DVISPACK_BUILD_BENCH=OFF -DVISPACK_WERROR=ON
+  if [[ -n $cluster_pid ]]; then
+    stamp "Cluster tests (ran beside the sanitizer build): one-node SLURM and Snakemake against vispack-run"
+    wait "$cluster_pid" || failed=1
+    cluster_pid=""
+    cat "$cluster_log"
+  fi
   # Leak detection on (our code is checked for leaks), every UBSan finding fatal.
   stamp "Running sanitized tests (common, format, pipeline, render, viewer, data, cli, phantom, python)"
   # Seven accuracy cases on real data or at the real slice size take a third of the sanitized
