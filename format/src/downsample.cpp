@@ -4,6 +4,7 @@
 #include <cstring>
 #include <vector>
 
+#include "int_math.h"
 #include "vispack/common/parallel.h"
 #include "vispack/common/zero_paged_buffer.h"
 
@@ -18,9 +19,7 @@ std::int64_t round_div(std::int64_t sum, std::int64_t n) {
   return q;
 }
 
-std::int64_t ceil_div(std::int64_t a, std::int64_t b) {
-  return (a + b - 1) / b;
-}
+using detail::ceil_div;
 
 // The tie-break of reduce_majority: does `id` seen `n` times beat `best` seen `best_n` times?
 inline bool beats(std::uint16_t id, std::size_t n, std::uint16_t best, std::size_t best_n) {

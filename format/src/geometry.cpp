@@ -3,18 +3,13 @@
 #include <cmath>
 #include <limits>
 
+#include "int_math.h"
+
 namespace vispack::format {
 namespace {
 
-std::int64_t ceil_div(std::int64_t a, std::int64_t b) {
-  return (a + b - 1) / b;
-}
-
-// a * b, or nullopt when it overflows uint64.
-std::optional<std::uint64_t> mul(std::uint64_t a, std::uint64_t b) {
-  if (a != 0 && b > std::numeric_limits<std::uint64_t>::max() / a) return std::nullopt;
-  return a * b;
-}
+using detail::ceil_div;
+using detail::mul;
 
 }  // namespace
 

@@ -5,6 +5,7 @@
 #include <optional>
 #include <unordered_set>
 
+#include "int_math.h"
 #include "vispack/common/error.h"
 
 namespace vispack::format {
@@ -12,10 +13,7 @@ namespace {
 
 using nlohmann::json;
 
-std::optional<std::uint64_t> mul(std::uint64_t a, std::uint64_t b) {
-  if (a != 0 && b > std::numeric_limits<std::uint64_t>::max() / a) return std::nullopt;
-  return a * b;
-}
+using detail::mul;
 
 template <typename T>
 json array3(const std::array<T, 3>& a) {

@@ -20,6 +20,7 @@
 
 #include <nlohmann/json.hpp>
 
+#include "int_math.h"
 #include "layout.h"
 #include "vispack/common/error.h"
 #include "vispack/format/geometry.h"
@@ -27,16 +28,6 @@
 
 namespace vispack::format {
 namespace detail {
-
-// a * b, or nullopt when it overflows uint64.
-inline std::optional<std::uint64_t> mul(std::uint64_t a, std::uint64_t b) {
-  if (a != 0 && b > std::numeric_limits<std::uint64_t>::max() / a) return std::nullopt;
-  return a * b;
-}
-inline std::optional<std::uint64_t> add(std::uint64_t a, std::uint64_t b) {
-  if (b > std::numeric_limits<std::uint64_t>::max() - a) return std::nullopt;
-  return a + b;
-}
 
 inline std::string brick_name(const std::vector<ChannelSpec>& channels, int level, int channel,
                               std::int64_t bx, std::int64_t by, std::int64_t bz) {

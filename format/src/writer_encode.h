@@ -8,15 +8,12 @@
 #include <string>
 #include <vector>
 
+#include "int_math.h"
 #include "layout.h"
 #include "vispack/common/zero_paged_buffer.h"
 #include "vispack/format/writer.h"
 
 namespace vispack::format::detail {
-
-inline std::int64_t ceil_div(std::int64_t a, std::int64_t b) {
-  return (a + b - 1) / b;
-}
 
 // Per-thread state of a compression worker: its zstd context and scratch buffers, allocated
 // once and reused for every brick (no per-brick allocation or zero-filling).
