@@ -15,6 +15,7 @@
 # runs; VISPACK_BENCH_MEDIUM=0 skips the medium phantom in the scaling runs;
 # VISPACK_BENCH_MEM_SLICES (default "64 128 256"): slice counts of the per-stage memory runs;
 # VISPACK_BENCH_STORE_SLICES (default 8): slices of the vhp phantom of the stored-size run;
+# VISPACK_BENCH_OMEZARR_SLICES (default 128): slices of the vhp phantom of the OME-Zarr export run;
 # VISPACK_BENCH_REAL_SLICES (default "128 256 512"): stack sizes of the real-size runs (2048x1216),
 # VISPACK_BENCH_REAL_REPS (default 3): their one/two-thread and pack/zstd rounds.
 # Results (JSON, logs) go to BUILD/bench/results; any failing benchmark makes the script exit 1.
@@ -29,7 +30,7 @@ while [[ $# -gt 0 ]]; do
     --build) build=$(realpath -m "$2"); shift ;;
     --require-clean) require_clean=1 ;;
     --full-length) shift; exec "$root/scripts/bench/full_length.sh" --build "$build" --report "$@" ;;
-    -h|--help) sed -n '2,20p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,21p' "$0"; exit 0 ;;
     *) echo "bench.sh: unknown option $1" >&2; exit 2 ;;
   esac
   shift
@@ -56,7 +57,7 @@ if [[ $do_build == 1 ]]; then
 fi
 bin=$build/bin
 for exe in vispack-phantom vispack-run vispack-register vispack-mask vispack-labels vispack-pack vispack-vdb \
-  vispack-extract register_bench mask_bench ecc_bench; do
+  vispack-extract vispack-export vispack-info register_bench mask_bench ecc_bench; do
   [[ -x $bin/$exe ]] || fail "$bin/$exe was not built"
 done
 
@@ -144,6 +145,13 @@ if [[ $quick == 0 ]]; then
   "$root/scripts/bench/store_size.sh" "$bin" "$work/store" "${VISPACK_BENCH_STORE_SLICES:-8}" \
     "$res/store_size.json" >"$res/store_size.md" 2>"$res/store_size.log" ||
     { cat "$res/store_size.log"; fail "stored-size benchmark failed"; }
+  # The OME-Zarr export against vispack-extract writing NRRD, 2048x1216 (section "OME-Zarr
+  # export against NRRD extraction", written by the report from its results).
+  oz_slices=${VISPACK_BENCH_OMEZARR_SLICES:-128}
+  stamp "OME-Zarr export against NRRD extraction: vhp phantom, $oz_slices slices, 3 rounds"
+  "$root/scripts/bench/ome_zarr_export.sh" "$bin" "$work/ome-zarr" "$oz_slices" 2 \
+    "$res/ome_zarr_export.json" 3 >"$res/ome_zarr_export.md" 2>"$res/ome_zarr_export.log" ||
+    { cat "$res/ome_zarr_export.log"; fail "OME-Zarr export benchmark failed"; }
 fi
 
 stamp "Viewer: slice renderer and VTK's GPU ray caster on the same volume and view, interleaved"

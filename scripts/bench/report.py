@@ -119,7 +119,7 @@ class Report(StagesSection, RegistrationSection, PackSection, ViewerSection, Sca
     def write(self):
         kept = self.kept_sections()
         self.header()
-        for name in ["stages", "registration", "ecc", "drift_models", "mask", "pack", "store_size", "viewer", "scaling",
+        for name in ["stages", "registration", "ecc", "drift_models", "mask", "pack", "ome_zarr", "store_size", "viewer", "scaling",
                      "startup", "real_size", "stage_memory", "format_details", "profiles"]:
             getattr(self, name)()
             for text in kept.pop(name, []):
