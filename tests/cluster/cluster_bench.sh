@@ -130,7 +130,12 @@ for rep in $(seq "$reps"); do
     sync
     t=$(now)
     "$slurm_script" "$tmp/w$w/config.json" --shards "$w" --bin "$chain_bin" \
-      --jobs-dir "$tmp/w$w/jobs" --wait --poll 0.5 >"$tmp/w$w.out" 2>&1 || { cat "$tmp/w$w.out"; exit 1; }
+      --jobs-dir "$tmp/w$w/jobs" --wait --poll 0.5 >"$tmp/w$w.out" 2>&1 || {
+      # The failed chain's job logs are printed here: the temporary folder goes with the exit.
+      cat "$tmp/w$w.out"
+      for log in "$tmp/w$w/jobs/logs/"*; do [[ -s $log ]] && { echo "--- $log"; tail -n 20 "$log"; }; done
+      exit 1
+    }
     wall=$(elapsed "$t")
     walls[$version$w]+=" $wall"
     cmp -s "$tmp/local/out/volume.vpk" "$tmp/w$w/out/volume.vpk" || { echo "$version w$w: packed file differs"; exit 1; }
