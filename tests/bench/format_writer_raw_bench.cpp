@@ -8,7 +8,8 @@
 // FIFO, writes "enable" to it when the timed part starts (profile the Writer alone).
 //
 //   build/bin/format_writer_raw_bench TEMPLATE.vpk OUT.vpk CHANNEL.nrrd... [--zstd-level L]
-//       [--threads T] [--repeat N]
+//       [--threads T] [--repeat N] [--brick-edge E]
+// --brick-edge E writes bricks of E (the Writer checks it) instead of the template's.
 // --repeat N feeds the slices N times over (0..nz-1, 0..nz-1, ...: a stack N times as deep, whose
 // level-0 bytes are each NRRD's data N times over, the peer's input), to measure the encoder past
 // its first slabs (the first fill of a fresh slab pays its page faults) without holding N times
@@ -50,7 +51,8 @@ double since(Clock::time_point t) {
 int main(int argc, char** argv) {
   return run_main("format_writer_raw_bench", argc, argv, [](Args& args) {
     args.describe(
-        "TEMPLATE.vpk OUT.vpk CHANNEL.nrrd... [--zstd-level L] [--threads T] [--repeat N]",
+        "TEMPLATE.vpk OUT.vpk CHANNEL.nrrd... [--zstd-level L] [--threads T] [--repeat N] "
+        "[--brick-edge E]",
         "Times the format Writer on a packed file's level-0 bytes (vispack-extract "
         "NRRDs, one per channel in the file's order) with the file's options.");
     const int zstd_level =
@@ -59,6 +61,8 @@ int main(int argc, char** argv) {
     const int repeat = int(
         args.option_int("--repeat", "N", "feed the slices N times over (default 1)").value_or(1));
     if (repeat < 1) throw UsageError("--repeat must be at least 1");
+    const auto brick_edge =
+        args.option_int("--brick-edge", "E", "brick edge (default: the template's)");
     const std::string template_path = args.positional("TEMPLATE.vpk", "packed file (options)");
     const std::string out_path = args.positional("OUT.vpk", "output packed file");
     std::vector<std::string> inputs;
@@ -77,7 +81,7 @@ int main(int argc, char** argv) {
     options.dims = tmpl.dims(0);
     options.spacing_mm = tmpl.spacing_mm(0);
     options.origin_mm = tmpl.origin_mm(0);
-    options.brick_edge = tmpl.brick_edge();
+    options.brick_edge = int(brick_edge.value_or(tmpl.brick_edge()));
     options.zstd_level = zstd_level;
     options.threads = threads;
     options.label_table = tmpl.label_table();

@@ -16,6 +16,7 @@
 // once, the cost per worker at once, and the speed-up two workers could reach at best
 // (2 x alone / at once). Exits 2 with a message on a bad argument, 1 when a child fails.
 //   build/bin/machine_bench [--rounds R] [--mib M] [--compute-steps N] [--settle-s S]
+//                           [--workers LIST]   (K processes at once for each K: 1 -> 2 -> 4 -> 8)
 // bench-links: vispack_common
 #include <sys/mman.h>
 #include <sys/wait.h>
@@ -37,6 +38,7 @@ struct Options {
   std::size_t mib = 1024;
   std::int64_t compute_steps = 1'500'000'000;  // ~3 s on a 2-4 GHz core
   double settle_s = 3.0;
+  std::vector<int> workers = {2};  // processes at once, each row timed against one alone
 };
 
 enum class Workload { kCompute, kFreshMemory, kMemoryRead };
@@ -138,7 +140,8 @@ double median(std::vector<double> v) {
 [[noreturn]] void usage_error(const std::string& message) {
   std::fprintf(stderr, "machine_bench: %s\n", message.c_str());
   std::fprintf(stderr,
-               "usage: machine_bench [--rounds R] [--mib M] [--compute-steps N] [--settle-s S]\n");
+               "usage: machine_bench [--rounds R] [--mib M] [--compute-steps N] [--settle-s S] "
+               "[--workers LIST]\n");
   std::exit(2);
 }
 
@@ -163,10 +166,12 @@ int main(int argc, char** argv) {
     const std::string arg = argv[i];
     if (arg == "--help" || arg == "-h") {
       std::printf(
-          "usage: machine_bench [--rounds R] [--mib M] [--compute-steps N] [--settle-s S]\n"
+          "usage: machine_bench [--rounds R] [--mib M] [--compute-steps N] [--settle-s S] "
+          "[--workers LIST]\n"
           "Times a compute loop, the first touch of M MiB of fresh memory (after S s of rest) and\n"
-          "read passes over M MiB, alone and two processes at once, R interleaved rounds\n"
-          "(defaults: 3 rounds, 1024 MiB, 1.5e9 steps, 3 s); prints what a second worker gets.\n");
+          "read passes over M MiB, alone and K processes at once for each K of LIST (comma\n"
+          "separated, each 2 to 1024), R interleaved rounds (defaults: 3 rounds, 1024 MiB, 1.5e9\n"
+          "steps, 3 s, workers 2); prints what K workers get at best (K x alone / at once).\n");
       return 0;
     }
     if (arg == "--rounds") {
@@ -177,6 +182,21 @@ int main(int argc, char** argv) {
       options.compute_steps = std::int64_t(number_argument(argc, argv, i, 1, 1e13));
     } else if (arg == "--settle-s") {
       options.settle_s = number_argument(argc, argv, i, 0, 3600);
+    } else if (arg == "--workers") {
+      if (i + 1 >= argc) usage_error("--workers needs a value");
+      options.workers.clear();
+      const std::string list = argv[++i];
+      for (std::size_t pos = 0; pos <= list.size();) {
+        std::size_t end = list.find(',', pos);
+        if (end == std::string::npos) end = list.size();
+        const std::string item = list.substr(pos, end - pos);
+        char* stop = nullptr;
+        const long k = std::strtol(item.c_str(), &stop, 10);
+        if (item.empty() || *stop != '\0' || k < 2 || k > 1024)
+          usage_error("--workers '" + list + "': expected a comma-separated list of 2 to 1024");
+        options.workers.push_back(int(k));
+        pos = end + 1;
+      }
     } else {
       usage_error("unknown argument '" + arg + "'");
     }
@@ -185,17 +205,22 @@ int main(int argc, char** argv) {
   struct Row {
     const char* name;
     Workload workload;
-    std::vector<double> alone, at_once;
+    std::vector<double> alone;
+    std::vector<std::vector<double>> at_once;  // per entry of options.workers
   };
+  const std::size_t counts = options.workers.size();
   std::vector<Row> rows = {{"compute", Workload::kCompute, {}, {}},
                            {"fresh memory", Workload::kFreshMemory, {}, {}},
                            {"memory read", Workload::kMemoryRead, {}, {}}};
+  for (Row& row : rows)
+    row.at_once.resize(counts);
   std::printf("machine: %u hardware threads; %d rounds, %zu MiB, %lld compute steps, %.1f s rest\n",
               std::thread::hardware_concurrency(), options.rounds, options.mib,
               static_cast<long long>(options.compute_steps), options.settle_s);
   for (int round = 0; round < options.rounds; ++round) {
     for (Row& row : rows) {
-      for (int workers : {1, 2}) {
+      for (std::size_t c = 0; c <= counts; ++c) {
+        const int workers = c == 0 ? 1 : options.workers[c - 1];
         if (row.workload == Workload::kFreshMemory)
           std::this_thread::sleep_for(std::chrono::duration<double>(options.settle_s));
         const std::vector<double> times = run_at_once(row.workload, options, workers);
@@ -204,18 +229,34 @@ int main(int argc, char** argv) {
                        row.name, workers, round + 1);
           return 1;
         }
-        (workers == 1 ? row.alone : row.at_once)
-            .push_back(*std::max_element(times.begin(), times.end()));
+        const double slowest = *std::max_element(times.begin(), times.end());
+        (c == 0 ? row.alone : row.at_once[c - 1]).push_back(slowest);
       }
     }
   }
+  if (counts == 1 && options.workers[0] == 2) {
+    // The table docs/BENCHMARKS.md "Cluster" quotes (tests/cluster/cluster_bench.sh prints it).
+    std::printf(
+        "| workload | alone, s | two at once, s (slower) | per worker at once | "
+        "two workers at best |\n|---|---|---|---|---|\n");
+    for (const Row& row : rows) {
+      const double alone = median(row.alone), at_once = median(row.at_once[0]);
+      std::printf("| %s | %.3f | %.3f | %+.0f %% | %.2fx |\n", row.name, alone, at_once,
+                  100.0 * (at_once / alone - 1.0), 2.0 * alone / at_once);
+    }
+    return 0;
+  }
   std::printf(
-      "| workload | alone, s | two at once, s (slower) | per worker at once | "
-      "two workers at best |\n|---|---|---|---|---|\n");
+      "| workload | workers | alone, s | at once, s (slowest) | per worker at once | "
+      "K workers at best |\n|---|---|---|---|---|---|\n");
   for (const Row& row : rows) {
-    const double alone = median(row.alone), at_once = median(row.at_once);
-    std::printf("| %s | %.3f | %.3f | %+.0f %% | %.2fx |\n", row.name, alone, at_once,
-                100.0 * (at_once / alone - 1.0), 2.0 * alone / at_once);
+    const double alone = median(row.alone);
+    for (std::size_t c = 0; c < counts; ++c) {
+      const int k = options.workers[c];
+      const double at_once = median(row.at_once[c]);
+      std::printf("| %s | %d | %.3f | %.3f | %+.0f %% | %.2fx |\n", row.name, k, alone, at_once,
+                  100.0 * (at_once / alone - 1.0), double(k) * alone / at_once);
+    }
   }
   return 0;
 }

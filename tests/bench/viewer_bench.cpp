@@ -14,7 +14,9 @@
 // footprint asks for; --psnr adds its foreground PSNR against the CPU reference of the finest level
 // it draws. --paged-only skips the whole-level measurements (which upload level 0 whole),
 // --no-paged the paged ones;
-// --modes LIST restricts the paged modes, --reps N sets the frames timed per row (median).
+// --modes LIST restricts the paged modes, --reps N sets the frames timed per row (median);
+// --level L draws level L only in the paged frames (finest = coarsest = L: level 0 at any frame
+// size; raise --max-gpu-mb to hold it), instead of the level the screen footprint asks for.
 // Long files (docs/BENCHMARKS.md, 'Viewer on long files'): --stack X,Y,Z --keep OUT.vpk writes a
 // synthetic stack slice by slice through the streaming writer (a body whose section changes
 // along z, colour, CT and labels, zeros outside it as the pipeline stores them, 4 runs of 3 lost
@@ -322,7 +324,8 @@ void orbit_bench(const std::string& path, int size, std::int64_t gpu_mb, bool ea
 }
 
 void paged_bench(const std::string& path, int size, std::int64_t gpu_mb, bool psnr, int reps,
-                 const std::vector<Mode>& modes, nlohmann::json& out) {
+                 const std::vector<Mode>& modes, std::optional<int> only_level,
+                 nlohmann::json& out) {
   double t_open = now();
   std::shared_ptr<const VolumeSource> source = fill_lost_slices(open_packed(path));
   viewer::HeadlessContext context;
@@ -340,6 +343,8 @@ void paged_bench(const std::string& path, int size, std::int64_t gpu_mb, bool ps
   base.label_colours = make_label_colours(source->labels(), 0.5);
   base.reference_length_mm = reference_length(g0);
   const int levels = source->level_count();
+  if (only_level && *only_level >= levels)
+    throw UsageError(cat("--level ", *only_level, ": ", path, " has levels 0 to ", levels - 1));
   {
     PlanOptions first;
     first.finest_level = first.coarsest_level = levels - 1;
@@ -376,6 +381,7 @@ void paged_bench(const std::string& path, int size, std::int64_t gpu_mb, bool ps
       PlanOptions popt;
       popt.max_bytes = gpu_mb << 20;
       popt.border = viewer::BrickCache::kBorder;
+      if (only_level) popt.finest_level = popt.coarsest_level = *only_level;
       BrickPlan plan = plan_bricks(tree, cam, p, popt, ch);
       // A fresh cache per mode at the first density: its uploads are that frame's own.
       if (spv == 2.0) cache = std::make_unique<viewer::BrickCache>(*source, gpu_mb << 20, 0);
@@ -472,6 +478,8 @@ int main(int argc, char** argv) {
                              "write a synthetic stack slice by slice (with --keep) and stop");
     bool orbit_run = args.flag("--orbit", "first picture, a frame and a 36-frame orbit (--file)");
     bool eager = args.flag("--eager-tree", "--orbit: build every level's tree first (as before)");
+    auto only_level = args.option_int(
+        "--level", "L", "paged frames: draw level L only, whatever the screen footprint asks for");
     args.done();
     if (stack) {
       long long d[3];
@@ -522,6 +530,14 @@ int main(int argc, char** argv) {
     int size = int(size_opt.value_or(256));
     std::string path;
     std::filesystem::path tmp;
+    // The synthetic volume's temporary folder goes on any exit, an error's too.
+    struct RemoveFolder {
+      const std::filesystem::path& folder;
+      ~RemoveFolder() {
+        std::error_code ec;
+        if (!folder.empty()) std::filesystem::remove_all(folder, ec);
+      }
+    } remove_tmp{tmp};
     if (file) {
       path = *file;
     } else {
@@ -550,10 +566,15 @@ int main(int argc, char** argv) {
       std::printf("synthetic %dx%dx%d written in %.1f s\n", d[0], d[1], d[2], now() - t0);
     }
 
-    if (!no_paged) paged_bench(path, size, gpu_mb.value_or(2048), paged_psnr, reps, modes, out);
+    std::optional<int> level;
+    if (only_level) {
+      if (*only_level < 0) throw UsageError("--level must be 0 or more");
+      level = int(*only_level);
+    }
+    if (!no_paged)
+      paged_bench(path, size, gpu_mb.value_or(2048), paged_psnr, reps, modes, level, out);
     if (paged_only) {
       if (json_out) write_file_atomic(*json_out, out.dump(1));
-      if (!tmp.empty()) std::filesystem::remove_all(tmp);
       return 0;
     }
 
@@ -652,7 +673,6 @@ int main(int argc, char** argv) {
     }
     out["rows"] = rows;
     if (json_out) write_file_atomic(*json_out, out.dump(1));
-    if (!tmp.empty()) std::filesystem::remove_all(tmp);
     return 0;
   });
 }
