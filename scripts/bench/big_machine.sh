@@ -61,6 +61,7 @@ frame=${VISPACK_BIG_FRAME:-1024}
 reps=${VISPACK_BIG_REPS:-5}
 rounds=${VISPACK_BIG_ROUNDS:-2}
 gpu_mb=${VISPACK_BIG_GPU_MB:-16384}
+modes=colour,ct,labels,tf2d,iso,mip,average,mpr  # every mode of vispack-view
 zstd_bin=$bin/zstd
 [[ -x $zstd_bin ]] || zstd_bin=$(command -v zstd || echo zstd)
 failed=()
@@ -123,10 +124,10 @@ viewer_on() {
   local file=$1 json=$2 psnr=()
   [[ ${VISPACK_BIG_PSNR:-0} == 1 ]] && psnr=(--psnr)
   "$bin/viewer_bench" --file "$file" --size "$frame" --paged-only --level 0 "${psnr[@]}" \
-    --max-gpu-mb "$gpu_mb" --reps "$reps" --json "$json" || return
+    --modes "$modes" --max-gpu-mb "$gpu_mb" --reps "$reps" --json "$json" || return
   [[ ${3:-} == footprint ]] || return 0
   "$bin/viewer_bench" --file "$file" --size "$frame" --paged-only --max-gpu-mb 2048 \
-    --reps "$reps" --json "${json%.json}-footprint.json"
+    --modes "$modes" --reps "$reps" --json "${json%.json}-footprint.json"
 }
 
 viewer_stack() {

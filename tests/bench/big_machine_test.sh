@@ -28,7 +28,7 @@ grep -q '^round 1 zstd -3 -T2: wall' "$log"
 import json, sys
 rows = json.load(open(sys.argv[1]))["paged"]
 modes = {r["mode"] for r in rows}
-assert modes == {"colour", "ct", "iso", "labels", "mip", "tf2d"}, modes
+assert modes == {"colour", "ct", "iso", "labels", "mip", "tf2d", "average", "mpr"}, modes
 assert all(r["levels"].endswith(" L0") and "," not in r["levels"] for r in rows), rows
 # At a 24² frame the footprint asks for coarser levels: --level 0 is what drew level 0 above.
 footprint = json.load(open(sys.argv[2]))["paged"]
