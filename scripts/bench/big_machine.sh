@@ -15,11 +15,12 @@
 #      pack.brick_edge EDGE so that the stack has 8 whole slabs: default 256 and 32) with
 #      1, 8, 4, 2 workers (VISPACK_BIG_WORKERS), each chain's packed file compared byte for byte
 #      with the one-worker chain's; the page cache is emptied before each chain
-#   4. the viewer on the chain's packed file (the largest here), every mode at level 0
-#   5. the pack encoder against `zstd -3 -T2` on the same level-0 bytes (those of the one-worker
+#      (the one-worker chain first, the pack encoder's phase, then the others)
+#   4. the pack encoder against `zstd -3 -T2` on the same level-0 bytes (those of the one-worker
 #      chain's file), alternated, VISPACK_BIG_ROUNDS rounds (default 2): format_writer_raw_bench
 #      (bricks of 64, the pack's default, whatever the chain's EDGE) against zstd, wall and CPU
 #      seconds of each; then both on every core once
+#   5. the viewer on the chain's packed file (the largest here), every mode at level 0
 # Exit 0 when no phase failed (a skipped one is not a failure; the log says which), 1 otherwise.
 # Usage: scripts/bench/big_machine.sh BUNDLE_OR_BIN_DIR OUT_DIR [WORK_DIR]
 #   BUNDLE: a folder with bin/ and lib/ (bundle.sh); or a build's bin folder
@@ -161,10 +162,13 @@ chain_once() {
   fi
 }
 
-chains() {
-  local first=1 one_s=0 w
-  for w in $workers; do
-    if ((!first)); then
+# chain_runs W...: one chain per worker count; a count is skipped when the time left is under
+# its estimate from the one-worker chain (one_s, set by the run of 1).
+one_s=0
+chain_runs() {
+  local w
+  for w in "$@"; do
+    if ((one_s > 0)); then
       # A chain of w workers takes about 1/w of the one-worker chain, plus its fixed part.
       local estimate=$((one_s / w + one_s / 8 + 10))
       if (($(left) < estimate)); then
@@ -175,9 +179,13 @@ chains() {
     local t0
     t0=$(date +%s)
     chain_once "$w" || return
-    ((first)) && one_s=$(($(date +%s) - t0))
-    first=0
+    [[ $w == 1 ]] && one_s=$(($(date +%s) - t0))
   done
+  return 0
+}
+
+chains_summary() {
+  compgen -G "$work/chain-*.json" >/dev/null || { echo "no chain ran"; return 0; }
   python3 - "$out/chains.json" "$work"/chain-*.json <<'PY'
 import json, sys
 chains = [json.load(open(p)) for p in sys.argv[2:]]
@@ -225,9 +233,16 @@ phase "machine" 0 machine_info
 phase "machine_bench: K workers at best" 60 machine_ceiling
 phase "viewer, synthetic $stack, ${frame}² frames" 150 viewer_stack
 phase "$preset phantom, $slices slices" 90 chain_phantom
-phase "cluster chain, workers $workers" 120 chains
-phase "viewer, the chain's file" 60 viewer_chain
+# The one-worker chain first: its packed file is the encoder's input and the others' reference.
+first_workers=() other_workers=()
+for w in $workers; do
+  if [[ $w == 1 ]]; then first_workers+=(1); else other_workers+=("$w"); fi
+done
+phase "cluster chain, one worker" 120 chain_runs "${first_workers[@]}"
 phase "pack encoder against zstd -3 -T2" 80 encoder_vs_zstd
+phase "cluster chain, workers ${other_workers[*]}" 30 chain_runs "${other_workers[@]}"
+phase "cluster chain summary" 0 chains_summary
+phase "viewer, the chain's file" 60 viewer_chain
 echo
 echo "== big_machine.sh: $(($(date +%s) - start)) s in all"
 if ((${#failed[@]})); then
