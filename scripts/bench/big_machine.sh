@@ -15,7 +15,6 @@
 #      pack.brick_edge EDGE so that the stack has 8 whole slabs: default 256 and 32) with
 #      1, 8, 4, 2 workers (VISPACK_BIG_WORKERS), each chain's packed file compared byte for byte
 #      with the one-worker chain's; the page cache is emptied before each chain
-#      (the one-worker chain first, the pack encoder's phase, then the others)
 #   4. the pack encoder against `zstd -3 -T2` on the same level-0 bytes (those of the one-worker
 #      chain's file), alternated, VISPACK_BIG_ROUNDS rounds (default 2): format_writer_raw_bench
 #      (bricks of 64, the pack's default, whatever the chain's EDGE) against zstd, wall and CPU
@@ -233,15 +232,15 @@ phase "machine" 0 machine_info
 phase "machine_bench: K workers at best" 60 machine_ceiling
 phase "viewer, synthetic $stack, ${frame}² frames" 150 viewer_stack
 phase "$preset phantom, $slices slices" 90 chain_phantom
-# The one-worker chain first: its packed file is the encoder's input and the others' reference.
+# The one-worker chain first: its packed file is the others' reference and the encoder's input.
 first_workers=() other_workers=()
 for w in $workers; do
   if [[ $w == 1 ]]; then first_workers+=(1); else other_workers+=("$w"); fi
 done
 phase "cluster chain, one worker" 120 chain_runs "${first_workers[@]}"
-phase "pack encoder against zstd -3 -T2" 80 encoder_vs_zstd
 phase "cluster chain, workers ${other_workers[*]}" 30 chain_runs "${other_workers[@]}"
 phase "cluster chain summary" 0 chains_summary
+phase "pack encoder against zstd -3 -T2" 80 encoder_vs_zstd
 phase "viewer, the chain's file" 60 viewer_chain
 echo
 echo "== big_machine.sh: $(($(date +%s) - start)) s in all"
