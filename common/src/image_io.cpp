@@ -1,7 +1,9 @@
 #include "vispack/common/image_io.h"
 
+#ifdef VISPACK_HAVE_OPENIMAGEIO
 #include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
+#endif
 
 #include <algorithm>
 #include <cctype>
@@ -10,6 +12,7 @@
 
 #include "vispack/common/atomic_file.h"
 #include "vispack/common/error.h"
+#include "vispack/common/png_encode.h"
 
 namespace vispack {
 namespace {
@@ -21,6 +24,7 @@ std::string extension_of(const std::string& path) {
   return ext;
 }
 
+#ifdef VISPACK_HAVE_OPENIMAGEIO
 // OpenImageIO's messages may span lines; errors here are one line.
 std::string one_line(std::string text) {
   std::replace(text.begin(), text.end(), '\n', ' ');
@@ -28,6 +32,7 @@ std::string one_line(std::string text) {
     text.pop_back();
   return text;
 }
+#endif
 
 }  // namespace
 
@@ -47,6 +52,13 @@ void write_image_file(const std::string& path, const ImageView& image,
     throw IoError(cat(path, ": cannot write image: unsupported extension \"", ext,
                       "\" (use .png, .tif, .tiff, .jpg, .jpeg or .bmp)"));
   }
+#ifndef VISPACK_HAVE_OPENIMAGEIO
+  // The lean build (VISPACK_WITH_OPENIMAGEIO=OFF, docs/ARCHITECTURE.md "The lean build").
+  if (format != "png")
+    throw IoError(cat(path, ": cannot write ", format,
+                      ": this build has no OpenImageIO (VISPACK_WITH_OPENIMAGEIO=OFF); it writes "
+                      "PNG only"));
+#endif
   if (image.width <= 0 || image.height <= 0 || image.pixels == nullptr)
     throw IoError(cat(path, ": cannot write an empty image"));
   const int channels = image.channels;
@@ -63,6 +75,12 @@ void write_image_file(const std::string& path, const ImageView& image,
   if (options.png_level < 0 || options.png_level > 9)
     throw IoError(cat(path, ": PNG compression level ", options.png_level, " is outside 0..9"));
 
+#ifndef VISPACK_HAVE_OPENIMAGEIO
+  // The lean build: PNG through the built-in encoder (png_encode.h), png_level taken as
+  // libdeflate's level, every row with the Up filter whatever png_encoding asks.
+  const std::vector<unsigned char> png = encode_png(image, options.png_level);
+  write_file_atomic(path, png.data(), png.size());
+#else
   const OIIO::TypeDesc type = image.bits == 8 ? OIIO::TypeDesc::UINT8 : OIIO::TypeDesc::UINT16;
   OIIO::ImageSpec spec(image.width, image.height, channels, type);
   if (channels == 4) {
@@ -103,6 +121,7 @@ void write_image_file(const std::string& path, const ImageView& image,
   if (!output->write_image(type, image.pixels, OIIO::AutoStride, row_bytes) || !output->close())
     throw IoError(cat(path, ": cannot write image: ", one_line(output->geterror())));
   write_file_atomic(path, buffer.data(), buffer.size());
+#endif
 }
 
 }  // namespace vispack

@@ -1,7 +1,9 @@
 #include "vispack/pipeline/imaging/slice_io.h"
 
+#ifdef VISPACK_HAVE_OPENIMAGEIO
 #include <OpenImageIO/filesystem.h>
 #include <OpenImageIO/imageio.h>
+#endif
 
 #include <algorithm>
 #include <cctype>
@@ -146,6 +148,7 @@ cv::Mat read_raw(const std::string& path, const RawLayout& raw, std::uint64_t fi
   return image;
 }
 
+#ifdef VISPACK_HAVE_OPENIMAGEIO
 // OpenImageIO error texts span several lines ("Read error...\nPNG library error"); errors are
 // one line (docs/RELIABILITY.md), so the lines are joined with "; ".
 std::string one_line(std::string text) {
@@ -161,6 +164,7 @@ std::string one_line(std::string text) {
   }
   return out;
 }
+#endif
 
 // A PNG must hold its chunks up to IEND within the file. Checked before libpng sees the file:
 // libpng reports a truncated stream by printing "libpng error: ..." to stderr itself, which
@@ -183,6 +187,7 @@ void check_png_complete(const std::string& path, std::uint64_t size) {
   throw InputError(cat(path, ": PNG is truncated (", size, " bytes, chunks end without IEND)"));
 }
 
+#ifdef VISPACK_HAVE_OPENIMAGEIO
 // A BMP's header, checked before OpenImageIO opens the file. OpenImageIO 2.4's BMP reader trusts
 // its header (both found by fuzz_raw_slice):
 // - it decodes a run-length-encoded image inside open(), sized by the header's width and height,
@@ -251,6 +256,7 @@ auto guard_decoder(const std::string& path, F&& f) -> decltype(f()) {
     throw InputError(cat(path, ": cannot read image (the decoder failed: ", e.what(), ")"));
   }
 }
+#endif
 
 // The image formats a slice may be in, told by the file's first bytes (the name may say anything).
 // OpenImageIO, asked to open a file, tries every reader it has when the one the name points to
@@ -288,6 +294,7 @@ SliceFormat sniff_format(const std::string& path) {
                        "bytes ", first, "); header-less slices need the config's \"raw\" layout"));
 }
 
+#ifdef VISPACK_HAVE_OPENIMAGEIO
 std::unique_ptr<OIIO::ImageInput> open_oiio(const std::string& path, const SliceFormat& format,
                                             bool bmp_grey_as_rgb) {
   OIIO::ImageSpec config;
@@ -375,6 +382,40 @@ cv::Mat read_oiio_unguarded(const std::string& path, const SliceFormat& format) 
   input->close();
   return image;
 }
+#else
+// The lean build (VISPACK_WITH_OPENIMAGEIO=OFF, docs/ARCHITECTURE.md "The lean build"): a slice
+// the own PNG decoder cannot read.
+[[noreturn]] void refuse_without_oiio(const std::string& path, const SliceFormat& format) {
+  if (format.is("png"))
+    throw InputError(cat(path,
+                         ": cannot read PNG slice: this build has no OpenImageIO "
+                         "(VISPACK_WITH_OPENIMAGEIO=OFF) and its own PNG decoder reads only "
+                         "well-formed 8/16-bit grey, grey+alpha, RGB or RGBA PNGs, not "
+                         "interlaced, without a tRNS chunk, within ",
+                         kMaxImageEdge, " pixels a side and ", kMaxImageBytes, " bytes"));
+  throw InputError(cat(path, ": cannot read ", format.name,
+                       " slice: this build has no OpenImageIO (VISPACK_WITH_OPENIMAGEIO=OFF); it "
+                       "reads PNG and raw slices only"));
+}
+
+// The size in a PNG's IHDR chunk (the first chunk: bytes 8..32 of the file).
+cv::Size png_header_size(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  unsigned char h[24] = {};
+  if (!in.read(reinterpret_cast<char*>(h), sizeof h) || std::memcmp(h + 12, "IHDR", 4) != 0)
+    throw InputError(cat(path, ": PNG does not start with its IHDR chunk"));
+  auto be32 = [&](int at) {
+    return std::uint32_t(h[at]) << 24 | std::uint32_t(h[at + 1]) << 16 |
+           std::uint32_t(h[at + 2]) << 8 | std::uint32_t(h[at + 3]);
+  };
+  const std::uint32_t width = be32(16), height = be32(20);
+  if (width == 0 || height == 0 || width > std::uint32_t(kMaxImageEdge) ||
+      height > std::uint32_t(kMaxImageEdge))
+    throw InputError(cat(path, ": PNG header gives ", width, "x", height, " pixels (1 to ",
+                         kMaxImageEdge, " a side)"));
+  return {int(width), int(height)};
+}
+#endif
 
 }  // namespace
 
@@ -401,13 +442,18 @@ cv::Mat read_slice(const std::string& path, const std::optional<RawLayout>& raw)
         return std::move(*image);
     }
   }
+#ifdef VISPACK_HAVE_OPENIMAGEIO
   if (format.is("bmp")) check_bmp_header(path);
   return guard_decoder(path, [&] { return read_oiio_unguarded(path, format); });
+#else
+  refuse_without_oiio(path, format);
+#endif
 }
 
 cv::Size read_slice_size(const std::string& path, const std::optional<RawLayout>& raw) {
   if (raw) return {raw->width, raw->height};
   const SliceFormat format = sniff_format(path);
+#ifdef VISPACK_HAVE_OPENIMAGEIO
   if (format.is("bmp")) check_bmp_header(path);
   return guard_decoder(path, [&] {
     auto input = open_oiio(path, format, false);
@@ -415,6 +461,10 @@ cv::Size read_slice_size(const std::string& path, const std::optional<RawLayout>
     input->close();
     return size;
   });
+#else
+  if (format.is("png")) return png_header_size(path);
+  refuse_without_oiio(path, format);
+#endif
 }
 
 namespace {

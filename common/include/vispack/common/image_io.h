@@ -2,7 +2,10 @@
 // OpenImageIO, encoded in memory and written atomically (AtomicFile: the file appears complete
 // or not at all). Used by the pipeline's intermediates (pipeline/imaging/slice_io.h wraps it for
 // cv::Mat), vispack-extract and the viewer's screenshots. Library `vispack_image_io`, built
-// where OpenImageIO is found; it does not pull OpenImageIO into vispack_common.
+// where OpenImageIO is found; it does not pull OpenImageIO into vispack_common. In the lean
+// build (VISPACK_WITH_OPENIMAGEIO=OFF, docs/ARCHITECTURE.md "The lean build") it is built
+// without OpenImageIO and writes PNG only, through the built-in encoder (png_encode.h); a .tif,
+// .jpg or .bmp path is refused with an IoError naming it.
 // Thread-safe: no shared state (OpenImageIO's writers are independent objects).
 #pragma once
 

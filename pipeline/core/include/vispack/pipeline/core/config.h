@@ -46,7 +46,7 @@ struct RawLayout {
 struct SliceSource {
   std::string dir;               // absolute
   std::string pattern;           // e.g. "rgb_{n}.png"
-  std::optional<RawLayout> raw;  // header-less raw slices when set; else read via OpenImageIO
+  std::optional<RawLayout> raw;  // header-less raw slices when set; else an image file (slice_io.h)
 };
 
 struct CtSource : SliceSource {

@@ -5,7 +5,8 @@
 // the rows unfiltered. Every other PNG (palette, 1/2/4-bit, interlaced), and every file that is
 // not exactly well formed (a chunk CRC, the stream's Adler-32, its length, a filter type), is
 // declined: the caller reads it through OpenImageIO, which decodes what it can and reports what is
-// wrong as before. What it returns is what slice_io.h read_slice returns for the same file through
+// wrong as before (the lean build, which has no OpenImageIO, refuses it naming the file:
+// slice_io.h). What it returns is what slice_io.h read_slice returns for the same file through
 // OpenImageIO: the same type, the alpha channel dropped, 16-bit samples in native byte order
 // (tests/pipeline/test_png_decode.cpp compares the two).
 // Pure and thread-safe (no shared state).

@@ -3,6 +3,11 @@
 // Images are OpenCV matrices in RGB(A) channel order (NOT OpenCV's usual BGR): CV_8UC1/3/4 or
 // CV_16UC1/3/4. Reading and writing go through OpenImageIO (PNG, TIFF, BMP, JPEG), or through the
 // header-less raw layout of NLM Visible Human slices (RawLayout, config.h).
+// The lean build (VISPACK_WITH_OPENIMAGEIO=OFF, docs/ARCHITECTURE.md "The lean build") has no
+// OpenImageIO: it reads PNG through the own decoder (png_decode.h) and raw slices, and writes PNG
+// through the built-in encoder (common/png_encode.h); a TIFF, JPEG, BMP or PNM slice, a PNG the
+// own decoder declines, or a .tif/.jpg/.bmp output is refused with an error naming the file and
+// saying this build has no OpenImageIO.
 // All functions are thread-safe (no shared state); each call opens its own file.
 #pragma once
 
