@@ -1,8 +1,18 @@
 #!/usr/bin/env bash
 # Installs every Debian package that vispack's build, tests, demo and benchmarks need.
 # Idempotent and non-interactive: when everything is present it only runs dpkg-query and exits.
-# Usage: scripts/install-deps.sh [--bench]   (--bench adds the peers the benchmark report measures)
+# Usage: scripts/install-deps.sh [--bench] [--no-js]
+#   --bench adds the peers the benchmark report measures; --no-js leaves the tests' npm packages
+#   (scripts/fetch-js-deps.sh) to the caller (scripts/test.sh fetches them beside the build).
 set -euo pipefail
+bench=0 js=1
+for arg in "$@"; do
+  case "$arg" in
+    --bench) bench=1 ;;
+    --no-js) js=0 ;;
+    *) echo "install-deps: unknown option $arg" >&2; exit 2 ;;
+  esac
+done
 
 packages=(
   # toolchain
@@ -32,7 +42,7 @@ packages=(
 )
 # Debian's nodejs has no npm; a node from elsewhere (NodeSource) brings its own.
 command -v npm >/dev/null || packages+=(npm)
-if [[ "${1:-}" == "--bench" ]]; then
+if [[ $bench == 1 ]]; then
   packages+=(gnuplot-nox elastix python3-vtk9 hyperfine valgrind time python3-matplotlib linux-perf)
 fi
 
@@ -42,7 +52,7 @@ for p in "${packages[@]}"; do
   [[ "$status" == "install ok installed" ]] || missing+=("$p")
 done
 # The npm packages of the tests (tests/js/package.json): after the Debian ones, every run.
-fetch_js() { "$(dirname "${BASH_SOURCE[0]}")/fetch-js-deps.sh"; }
+fetch_js() { [[ $js == 0 ]] || "$(dirname "${BASH_SOURCE[0]}")/fetch-js-deps.sh"; }
 if [[ ${#missing[@]} -eq 0 ]]; then
   echo "install-deps: all ${#packages[@]} packages present"
   fetch_js
